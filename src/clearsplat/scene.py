@@ -1,0 +1,240 @@
+"""Gaussians, cameras, images and the view association of one prediction.
+
+Shapes and conventions are documented in ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import numpy as np
+
+from .cameras import Camera
+from .errors import ClearsplatError
+
+__all__ = ["Gaussians", "Scene", "SH_C0", "rgb_to_sh_dc", "sh_dc_to_rgb"]
+
+#: Zeroth-order real spherical-harmonic constant: colour = SH_C0 * f_dc + 0.5.
+SH_C0 = 0.28209479177387814
+
+
+def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
+    """DC coefficients (..., 3) that render as the view-independent colour ``rgb``."""
+    return ((np.asarray(rgb, dtype=np.float32) - 0.5) / SH_C0).astype(np.float32)
+
+
+def sh_dc_to_rgb(dc: np.ndarray) -> np.ndarray:
+    """Colour of DC coefficients before clamping: ``SH_C0 * dc + 0.5``."""
+    return (SH_C0 * np.asarray(dc, dtype=np.float32) + 0.5).astype(np.float32)
+
+
+@dataclass(eq=False)
+class Gaussians:
+    """A set of N 3D Gaussians (float32 arrays, C-contiguous).
+
+    Attributes
+    ----------
+    means : (N, 3) float32
+        Centres in world coordinates.
+    scales : (N, 3) float32
+        Standard deviations along the local axes (linear, positive).
+    quats : (N, 4) float32
+        Rotations as quaternions ``w, x, y, z``; normalised when used.
+    opacities : (N,) float32
+        Opacity in [0, 1] (not the logit stored on disk).
+    sh : (N, K, 3) float32
+        Spherical-harmonic colour coefficients, K in {1, 4, 9, 16};
+        ``sh[:, 0]`` is the DC term, colour = SH_C0 * dc + 0.5 + higher bands.
+    extra : dict of str to (N,) arrays
+        Further per-Gaussian properties (read from a PLY and written back).
+    """
+
+    means: np.ndarray
+    scales: np.ndarray
+    quats: np.ndarray
+    opacities: np.ndarray
+    sh: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.means = _f32(self.means)
+        self.scales = _f32(self.scales)
+        self.quats = _f32(self.quats)
+        self.opacities = _f32(self.opacities)
+        self.sh = _f32(self.sh)
+        if self.sh.ndim == 2 and self.sh.shape[1:] == (3,):
+            self.sh = self.sh[:, None, :].copy()
+        self.extra = {str(k): np.ascontiguousarray(v) for k, v in dict(self.extra).items()}
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    @property
+    def sh_degree(self) -> int:
+        """Spherical-harmonic degree: 0 for K=1, 1 for 4, 2 for 9, 3 for 16."""
+        return int(round(np.sqrt(self.sh.shape[1]))) - 1
+
+    def subset(self, index) -> "Gaussians":
+        """A new set holding ``index`` (bool mask or integer indices)."""
+        return Gaussians(self.means[index], self.scales[index], self.quats[index],
+                         self.opacities[index], self.sh[index],
+                         {k: v[index] for k, v in self.extra.items()})
+
+    def validate(self, *, path=None) -> None:
+        """Raise :class:`ClearsplatError` naming the field if anything is malformed."""
+        n = len(self)
+        expect = {"means": (n, 3), "scales": (n, 3), "quats": (n, 4), "opacities": (n,)}
+        for name, shape in expect.items():
+            arr = getattr(self, name)
+            if arr.shape != shape:
+                raise ClearsplatError(f"expected shape {shape}, got {arr.shape}",
+                                      path=path, field=name)
+        if self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3 \
+                or self.sh.shape[1] not in (1, 4, 9, 16):
+            raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, "
+                                  f"got {self.sh.shape}", path=path, field="sh")
+        for name in ("means", "scales", "quats", "opacities", "sh"):
+            arr = getattr(self, name)
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                i = int(np.argwhere(bad)[0][0])
+                raise ClearsplatError(f"non-finite value (first at Gaussian {i})",
+                                      path=path, field=name)
+        if n and not (self.scales > 0).all():
+            i = int(np.argwhere(~(self.scales > 0).all(axis=1))[0][0])
+            raise ClearsplatError(f"scales must be positive (first bad Gaussian {i})",
+                                  path=path, field="scales")
+        if n:
+            qn = np.linalg.norm(self.quats, axis=1)
+            if not (qn > 1e-12).all():
+                i = int(np.argmin(qn))
+                raise ClearsplatError(f"zero quaternion (first at Gaussian {i})",
+                                      path=path, field="quats")
+            if not ((self.opacities >= 0) & (self.opacities <= 1)).all():
+                i = int(np.argwhere((self.opacities < 0) | (self.opacities > 1))[0][0])
+                raise ClearsplatError(f"opacity outside [0, 1] (first at Gaussian {i})",
+                                      path=path, field="opacities")
+        for k, v in self.extra.items():
+            if v.shape[:1] != (n,):
+                raise ClearsplatError(f"expected {n} values, got shape {v.shape}",
+                                      path=path, field=k)
+
+
+@dataclass(eq=False)
+class Scene:
+    """One feed-forward prediction: Gaussians, their input views, and those views.
+
+    Attributes
+    ----------
+    gaussians : Gaussians
+        The N predicted Gaussians.
+    view_id : (N,) int32
+        Index of the input view whose prediction produced each Gaussian.
+    pixel_id : (N,) int64
+        ``row * width + col`` in that view's image, or -1 where the model is not
+        pixel-aligned. Several Gaussians may share a pixel.
+    cameras : list of Camera
+        The input cameras, in view-id order.
+    images : list of (H, W, 3) float32 arrays, or None
+        The input images, RGB in [0, 1], one per camera.
+    """
+
+    gaussians: Gaussians
+    view_id: np.ndarray
+    pixel_id: np.ndarray | None
+    cameras: list
+    images: list | None = None
+
+    def __post_init__(self):
+        n = len(self.gaussians)
+        self.view_id = np.ascontiguousarray(self.view_id, dtype=np.int32)
+        if self.pixel_id is None:
+            self.pixel_id = np.full(n, -1, dtype=np.int64)
+        self.pixel_id = np.ascontiguousarray(self.pixel_id, dtype=np.int64)
+        self.cameras = list(self.cameras)
+        if self.images is not None:
+            self.images = [np.ascontiguousarray(im, dtype=np.float32) for im in self.images]
+
+    # -- properties --------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.gaussians)
+
+    @property
+    def num_views(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def is_pixel_aligned(self) -> bool:
+        """True when every Gaussian carries a pixel index."""
+        return bool(len(self) and (self.pixel_id >= 0).all())
+
+    def view_mask(self, view: int) -> np.ndarray:
+        """Boolean mask (N,) of the Gaussians predicted from input ``view``."""
+        return self.view_id == view
+
+    def with_opacities(self, opacities: np.ndarray) -> "Scene":
+        """A copy that shares everything except the opacities."""
+        g = replace(self.gaussians, opacities=np.asarray(opacities, dtype=np.float32))
+        return replace(self, gaussians=g)
+
+    def subset(self, index) -> "Scene":
+        """A scene holding the Gaussians in ``index`` (bool mask or indices), same views."""
+        return Scene(self.gaussians.subset(index), self.view_id[index], self.pixel_id[index],
+                     self.cameras, self.images)
+
+    # -- checks ------------------------------------------------------------------------------
+    def validate(self, *, path=None) -> None:
+        """Raise :class:`ClearsplatError` naming the field if anything is inconsistent."""
+        self.gaussians.validate(path=path)
+        n, v = len(self), self.num_views
+        if self.view_id.shape != (n,):
+            raise ClearsplatError(f"expected {n} values, got shape {self.view_id.shape}",
+                                  path=path, field="view_id")
+        if self.pixel_id.shape != (n,):
+            raise ClearsplatError(f"expected {n} values, got shape {self.pixel_id.shape}",
+                                  path=path, field="pixel_id")
+        if v == 0:
+            raise ClearsplatError("the scene has no cameras", path=path, field="cameras")
+        for i, cam in enumerate(self.cameras):
+            if not isinstance(cam, Camera):
+                raise ClearsplatError(f"expected a Camera, got {type(cam).__name__}",
+                                      path=path, field=f"cameras[{i}]")
+        if n:
+            bad = (self.view_id < 0) | (self.view_id >= v)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise ClearsplatError(f"view id {int(self.view_id[i])} out of range 0..{v - 1} "
+                                      f"(Gaussian {i})", path=path, field="view_id")
+            sizes = np.array([c.width * c.height for c in self.cameras], dtype=np.int64)
+            limit = sizes[self.view_id]
+            bad = (self.pixel_id < -1) | (self.pixel_id >= limit)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise ClearsplatError(f"pixel id {int(self.pixel_id[i])} out of range for view "
+                                      f"{int(self.view_id[i])} (Gaussian {i})",
+                                      path=path, field="pixel_id")
+        if self.images is not None:
+            if len(self.images) != v:
+                raise ClearsplatError(f"{len(self.images)} images for {v} cameras",
+                                      path=path, field="images")
+            for i, (im, cam) in enumerate(zip(self.images, self.cameras)):
+                if im.shape != (cam.height, cam.width, 3):
+                    raise ClearsplatError(f"image {i} has shape {im.shape}, camera expects "
+                                          f"{(cam.height, cam.width, 3)}",
+                                          path=path, field=f"images[{i}]")
+                if not np.all(np.isfinite(im)):
+                    raise ClearsplatError(f"image {i} has non-finite values",
+                                          path=path, field=f"images[{i}]")
+
+    # -- files -------------------------------------------------------------------------------
+    def save(self, path, *, overwrite: bool = False) -> None:
+        """Write a scene bundle (``cameras.json``, ``images/``, ``gaussians.ply``).
+
+        See :func:`clearsplat.io.save_scene`.
+        """
+        from .io import save_scene
+        save_scene(self, path, overwrite=overwrite)
+
+
+def _f32(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float32)
+
