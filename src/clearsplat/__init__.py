@@ -6,8 +6,12 @@ Conventions (axes, matrices, quaternion order, pixel centres, SH layout) are on 
 
 from .cameras import Camera
 from .errors import ClearsplatError
+from .io import load_scene, read_ply, save_scene, write_ply
 from .scene import Gaussians, Scene
 
 __version__ = "0.1.0"
 
-__all__ = ["Camera", "ClearsplatError", "Gaussians", "Scene", "__version__"]
+__all__ = [
+    "Camera", "ClearsplatError", "Gaussians", "Scene", "__version__",
+    "load_scene", "read_ply", "save_scene", "write_ply",
+]

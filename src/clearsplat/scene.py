@@ -104,7 +104,7 @@ class Gaussians:
             raise ClearsplatError(f"scales must be positive (first bad Gaussian {i})",
                                   path=path, field="scales")
         if n:
-            qn = np.linalg.norm(self.quats, axis=1)
+            qn = np.linalg.norm(self.quats.astype(np.float64), axis=1)
             if not (qn > 1e-12).all():
                 i = int(np.argmin(qn))
                 raise ClearsplatError(f"zero quaternion (first at Gaussian {i})",

@@ -1,0 +1,589 @@
+"""Gaussians as a vertex PLY in the layout of the original 3DGS code.
+
+On disk (see ``docs/conventions.md``): ``x y z``, optional ``nx ny nz``, ``f_dc_0..2``,
+``f_rest_*`` (channel-major), ``opacity`` (logit), ``scale_0..2`` (log), ``rot_0..3``
+(w x y z), then any other properties, then the integer ``view_id`` and ``pixel_id``.
+
+Reading accepts ``binary_little_endian``, ``binary_big_endian`` and ``ascii`` files, every
+PLY scalar type and its alias (``float``/``float32``, ``int``/``int32``, ...; ``int64`` and
+``uint64`` as an extension). Properties with unknown names go to :attr:`Gaussians.extra` with
+their type. Elements other than ``vertex`` (faces, ...) are skipped and not written back;
+an element with list properties placed *before* the vertex element of a binary file cannot be
+skipped and is refused. Writing always produces ``binary_little_endian``.
+
+Exact round trip
+----------------
+Memory holds opacities in [0, 1] and linear scales, the file their logit and log, so
+converting back and forth would not reproduce the file. The reader therefore keeps the raw
+on-disk columns that are not stored bit for bit in memory (``opacity``, ``scale_*``, any core
+column whose type is not float32, and ``view_id``/``pixel_id``) in private entries of
+``Gaussians.extra`` whose keys start with :data:`RAW_PREFIX`. They follow the Gaussians through
+``subset`` and ``dataclasses.replace``. The writer uses the raw value of every element whose
+in-memory value still equals the value derived from it, and computes the others afresh
+(in float64, then rounded to float32). Loading and saving an unchanged file therefore reproduces
+every property value bit for bit, and the bytes too when the file was binary little-endian with
+only a vertex element and no comments.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ClearsplatError
+from ..scene import Gaussians
+
+__all__ = ["read_ply", "write_ply", "RAW_PREFIX"]
+
+#: Prefix of the private ``Gaussians.extra`` keys holding raw on-disk columns.
+RAW_PREFIX = "__ply_raw__:"
+
+#: Opacities are clipped into [OPACITY_EPS, 1 - OPACITY_EPS] before the logit.
+OPACITY_EPS = 1e-7
+
+_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+    "int64": "i8", "uint64": "u8",
+}
+_CANONICAL = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
+              "u4": "uint", "f4": "float", "f8": "double", "i8": "int64", "u8": "uint64"}
+_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+_NAME_RE = re.compile(r"^[^\s]+$")
+_REST_RE = re.compile(r"^f_rest_(\d+)$")
+_XYZ = ("x", "y", "z")
+_NORMALS = ("nx", "ny", "nz")
+_DC = ("f_dc_0", "f_dc_1", "f_dc_2")
+_SCALE = ("scale_0", "scale_1", "scale_2")
+_ROT = ("rot_0", "rot_1", "rot_2", "rot_3")
+_REQUIRED = _XYZ + _DC + ("opacity",) + _SCALE + _ROT
+_INDEX = ("view_id", "pixel_id")
+
+
+# ------------------------------------------------------------------------------------------------
+# header
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class _Property:
+    name: str
+    token: str                  # type as spelled in the file
+    dtype: str | None           # numpy code, e.g. "f4"; None for list properties
+    is_list: bool = False
+    list_types: tuple = ()      # (count code, item code) of a list property
+
+
+@dataclass
+class _Element:
+    name: str
+    count: int
+    props: list = dc_field(default_factory=list)
+
+
+@dataclass
+class _Header:
+    fmt: str
+    elements: list
+    comments: list
+    body_offset: int
+
+
+def _parse_header(data: bytes, path) -> _Header:
+    if not data.startswith(b"ply"):
+        raise ClearsplatError(f"not a PLY file (starts with {data[:8]!r})", path=path,
+                              field="header")
+    end = data.find(b"end_header")
+    if end < 0:
+        raise ClearsplatError("no 'end_header' line: truncated file or not a PLY file",
+                              path=path, field="header")
+    newline = data.find(b"\n", end)
+    if newline < 0 or data[end:newline].strip() != b"end_header":
+        raise ClearsplatError("malformed 'end_header' line", path=path, field="header")
+    try:
+        text = data[:end].decode("ascii")
+    except UnicodeDecodeError as e:
+        raise ClearsplatError(f"header is not ASCII text (byte {e.start})", path=path,
+                              field="header") from None
+    lines = [ln.strip() for ln in text.replace("\r\n", "\n").split("\n")]
+    if lines[0] != "ply":
+        raise ClearsplatError(f"first line must be 'ply', got {lines[0]!r}", path=path,
+                              field="header")
+    fmt, elements, comments = None, [], []
+    for lineno, line in enumerate(lines[1:], start=2):
+        words = line.split()
+        if not words:
+            continue
+        key = words[0]
+        where = f"header line {lineno}"
+        if key == "format":
+            if len(words) != 3 or words[1] not in _FORMATS:
+                raise ClearsplatError(f"unsupported format line {line!r} (expected ascii, "
+                                      "binary_little_endian or binary_big_endian)",
+                                      path=path, field=where)
+            fmt = words[1]
+        elif key in ("comment", "obj_info"):
+            comments.append(line)
+        elif key == "element":
+            if len(words) != 3 or not _is_count(words[2]):
+                raise ClearsplatError(f"malformed element line {line!r} (expected "
+                                      "'element NAME COUNT' with COUNT >= 0)",
+                                      path=path, field=where)
+            elements.append(_Element(words[1], int(words[2])))
+        elif key == "property":
+            if not elements:
+                raise ClearsplatError("property before any element", path=path, field=where)
+            el = elements[-1]
+            if len(words) == 5 and words[1] == "list":
+                for t in words[2:4]:
+                    if t not in _TYPES:
+                        raise ClearsplatError(f"unknown type {t!r}", path=path,
+                                              field=f"{el.name}.{words[4]}")
+                if _TYPES[words[2]][0] == "f":
+                    raise ClearsplatError("list count type must be an integer type",
+                                          path=path, field=f"{el.name}.{words[4]}")
+                prop = _Property(words[4], "list", None, True,
+                                 (_TYPES[words[2]], _TYPES[words[3]]))
+            elif len(words) == 3:
+                if words[1] not in _TYPES:
+                    raise ClearsplatError(f"unknown property type {words[1]!r} (known: "
+                                          f"{', '.join(sorted(_TYPES))})", path=path,
+                                          field=words[2] if el.name == "vertex"
+                                          else f"{el.name}.{words[2]}")
+                prop = _Property(words[2], words[1], _TYPES[words[1]])
+            else:
+                raise ClearsplatError(f"malformed property line {line!r}", path=path,
+                                      field=where)
+            if any(p.name == prop.name for p in el.props):
+                raise ClearsplatError(f"property {prop.name!r} appears twice in element "
+                                      f"{el.name!r}", path=path, field=prop.name)
+            el.props.append(prop)
+        else:
+            raise ClearsplatError(f"unknown header keyword {key!r}", path=path, field=where)
+    if fmt is None:
+        raise ClearsplatError("no 'format' line", path=path, field="header")
+    names = [e.name for e in elements]
+    if names.count("vertex") != 1:
+        raise ClearsplatError(f"expected exactly one 'vertex' element, found elements "
+                              f"{names}", path=path, field="vertex")
+    vertex = elements[names.index("vertex")]
+    for p in vertex.props:
+        if p.is_list:
+            raise ClearsplatError("list properties are not supported in the vertex element",
+                                  path=path, field=p.name)
+    return _Header(fmt, elements, comments, newline + 1)
+
+
+def _is_count(word: str) -> bool:
+    return word.isdigit()
+
+
+# ------------------------------------------------------------------------------------------------
+# body
+# ------------------------------------------------------------------------------------------------
+def _read_body(data: bytes, header: _Header, path) -> dict:
+    """The vertex columns as native-endian arrays, keyed by property name (file order)."""
+    if header.fmt == "ascii":
+        return _read_ascii(data[header.body_offset:], header, path)
+    order = _FORMATS[header.fmt]
+    offset = header.body_offset
+    for el in header.elements:
+        if el.name == "vertex":
+            dtype = np.dtype([(p.name, order + p.dtype) for p in el.props])
+            need = el.count * dtype.itemsize
+            have = len(data) - offset
+            if have < need:
+                raise ClearsplatError(
+                    f"file too short: the header promises {el.count} vertices of "
+                    f"{dtype.itemsize} bytes ({need} bytes) but only {have} bytes follow "
+                    "(truncated file, or the count in the header is wrong)",
+                    path=path, field="vertex")
+            rows = np.frombuffer(data, dtype=dtype, count=el.count, offset=offset)
+            last = el is header.elements[-1]
+            if last and have > need:
+                raise ClearsplatError(
+                    f"{have - need} unexpected bytes after the {el.count} vertices "
+                    "(the count in the header is wrong, or the file is corrupt)",
+                    path=path, field="vertex")
+            return {p.name: np.ascontiguousarray(rows[p.name], dtype=np.dtype(p.dtype))
+                    for p in el.props}
+        if any(p.is_list for p in el.props):
+            raise ClearsplatError(
+                f"cannot skip element {el.name!r} with list properties that comes before "
+                "the vertex element in a binary file; move the vertex element first",
+                path=path, field=el.name)
+        offset += el.count * sum(np.dtype(p.dtype).itemsize for p in el.props)
+        if offset > len(data):
+            raise ClearsplatError(f"file too short for element {el.name!r}", path=path,
+                                  field=el.name)
+    raise AssertionError("unreachable: vertex element checked in header")
+
+
+def _read_ascii(body: bytes, header: _Header, path) -> dict:
+    try:
+        text = body.decode("ascii")
+    except UnicodeDecodeError as e:
+        raise ClearsplatError(f"ASCII body holds a non-ASCII byte at offset {e.start}",
+                              path=path, field="vertex") from None
+    lines = [ln for ln in text.split("\n") if ln.strip()]
+    start = 0
+    for el in header.elements:
+        if el.name != "vertex":
+            start += el.count           # one line per element row
+            continue
+        rows = lines[start:start + el.count]
+        if len(rows) < el.count:
+            raise ClearsplatError(
+                f"file too short: the header promises {el.count} vertices but "
+                f"{max(len(rows), 0)} lines follow (truncated file, or the count in the "
+                "header is wrong)", path=path, field="vertex")
+        if el is header.elements[-1] and len(lines) > start + el.count:
+            raise ClearsplatError(
+                f"{len(lines) - start - el.count} unexpected lines after the {el.count} "
+                "vertices (the count in the header is wrong)", path=path, field="vertex")
+        nprop = len(el.props)
+        tokens = [r.split() for r in rows]
+        for i, t in enumerate(tokens):
+            if len(t) != nprop:
+                raise ClearsplatError(f"vertex {i} has {len(t)} values, the header "
+                                      f"declares {nprop} properties", path=path,
+                                      field="vertex")
+        table = np.array(tokens, dtype=str).reshape(el.count, nprop)
+        return {p.name: _parse_column(table[:, j], p, path) for j, p in enumerate(el.props)}
+    raise AssertionError("unreachable: vertex element checked in header")
+
+
+def _parse_column(words: np.ndarray, prop: _Property, path) -> np.ndarray:
+    dtype = np.dtype(prop.dtype)
+    try:
+        if dtype.kind == "f":
+            return np.ascontiguousarray(words.astype(np.float64).astype(dtype))
+        values = words.astype(np.int64) if dtype != np.uint64 else words.astype(np.uint64)
+    except (ValueError, OverflowError):
+        bad = next(i for i, w in enumerate(words) if not _parses(w, dtype))
+        raise ClearsplatError(f"vertex {bad}: {str(words[bad])!r} is not a valid {prop.token}",
+                              path=path, field=prop.name) from None
+    info = np.iinfo(dtype)
+    out_of_range = (values < info.min) | (values > info.max)
+    if out_of_range.any():
+        i = int(np.argmax(out_of_range))
+        raise ClearsplatError(f"vertex {i}: {str(words[i])} does not fit in {prop.token}",
+                              path=path, field=prop.name)
+    return np.ascontiguousarray(values.astype(dtype))
+
+
+def _parses(word: str, dtype: np.dtype) -> bool:
+    try:
+        float(word) if dtype.kind == "f" else int(word)
+    except ValueError:
+        return False
+    return True
+
+
+# ------------------------------------------------------------------------------------------------
+# conversions between disk and memory (shared by reader and writer, so they agree bit for bit)
+# ------------------------------------------------------------------------------------------------
+def _opacity_from_logit(raw: np.ndarray) -> np.ndarray:
+    """Sigmoid in float64 without overflow, rounded to float32."""
+    x = np.asarray(raw, dtype=np.float64)
+    out = np.empty_like(x)
+    pos = x >= 0
+    out[pos] = 1.0 / (1.0 + np.exp(-x[pos]))
+    e = np.exp(x[~pos])
+    out[~pos] = e / (1.0 + e)
+    return out.astype(np.float32)
+
+
+def _logit_from_opacity(o: np.ndarray) -> np.ndarray:
+    p = np.clip(np.asarray(o, dtype=np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
+    return np.log(p / (1.0 - p)).astype(np.float32)
+
+
+def _scale_from_log(raw: np.ndarray) -> np.ndarray:
+    with np.errstate(over="ignore"):
+        return np.exp(np.asarray(raw, dtype=np.float64)).astype(np.float32)
+
+
+def _log_from_scale(s: np.ndarray) -> np.ndarray:
+    return np.log(np.asarray(s, dtype=np.float64)).astype(np.float32)
+
+
+def _identity_f32(raw: np.ndarray) -> np.ndarray:
+    return np.asarray(raw).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------------
+# reading
+# ------------------------------------------------------------------------------------------------
+def read_ply(path) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
+    """Read Gaussians from a 3DGS-layout PLY file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.ply`` file (binary little/big-endian or ASCII). It is only read.
+
+    Returns
+    -------
+    gaussians : Gaussians
+        Opacities in [0, 1] and linear scales (float32). Unknown properties (``nx ny nz``,
+        custom fields) are in ``gaussians.extra`` with their on-disk type; private
+        ``RAW_PREFIX`` entries keep the raw columns for an exact round trip.
+    view_id : (N,) int32 or None
+        The ``view_id`` property, or None when the file has none.
+    pixel_id : (N,) int64 or None
+        The ``pixel_id`` property, or None when the file has none.
+
+    Raises
+    ------
+    ClearsplatError
+        Naming the file and the property: unreadable or truncated file, missing property,
+        non-finite value, a log scale outside the float32 range, a zero quaternion,
+        a non-integer ``view_id``/``pixel_id``.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ClearsplatError("file not found", path=path, field="gaussians") from None
+    except OSError as e:
+        raise ClearsplatError(f"cannot read file ({e.strerror})", path=path,
+                              field="gaussians") from None
+    header = _parse_header(data, path)
+    cols = _read_body(data, header, path)
+    types = {p.name: p.token for p in next(e for e in header.elements
+                                           if e.name == "vertex").props}
+    return _columns_to_gaussians(cols, types, header.comments, path)
+
+
+def _columns_to_gaussians(cols: dict, types: dict, comments: list, path):
+    for name in _REQUIRED:
+        if name not in cols:
+            raise ClearsplatError(
+                "required property is missing (a 3DGS PLY has x y z, f_dc_0..2, "
+                "opacity, scale_0..2, rot_0..3)", path=path, field=name)
+    for name, col in cols.items():
+        if col.dtype.kind == "f" and not np.isfinite(col).all():
+            i = int(np.argmax(~np.isfinite(col)))
+            raise ClearsplatError(f"non-finite value {col[i]} (first at vertex {i})",
+                                  path=path, field=name)
+    n = len(cols["x"])
+    rest = sorted((int(m.group(1)), name) for name in cols
+                  if (m := _REST_RE.match(name)))
+    m = len(rest)
+    if [i for i, _ in rest] != list(range(m)) or m % 3 or (m // 3 + 1) not in (1, 4, 9, 16):
+        raise ClearsplatError(
+            f"expected f_rest_0..f_rest_{{M-1}} with M in 0, 9, 24, 45 (SH degree 0..3), got "
+            f"{m} f_rest properties numbered {[i for i, _ in rest][:6]}...",
+            path=path, field="f_rest_*")
+    k = m // 3 + 1
+
+    raw: dict = {}
+
+    def column(name, to_memory=_identity_f32):
+        col = cols[name]
+        if to_memory is not _identity_f32 or col.dtype != np.float32:
+            raw[RAW_PREFIX + name] = col
+        return to_memory(col)
+
+    means = np.stack([column(c) for c in _XYZ], axis=1)
+    opacities = column("opacity", _opacity_from_logit)
+    scales = np.stack([column(c, _scale_from_log) for c in _SCALE], axis=1)
+    for j, c in enumerate(_SCALE):
+        bad = ~(np.isfinite(scales[:, j]) & (scales[:, j] > 0))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ClearsplatError(f"log scale {cols[c][i]} (vertex {i}) gives a scale outside "
+                                  "the float32 range", path=path, field=c)
+    quats = np.stack([column(c) for c in _ROT], axis=1)
+    if n:
+        zero = ~(np.linalg.norm(quats.astype(np.float64), axis=1) > 0)
+        if zero.any():
+            raise ClearsplatError(f"zero quaternion (first at vertex {int(np.argmax(zero))})",
+                                  path=path, field="rot_0..3")
+    sh = np.empty((n, k, 3), dtype=np.float32)
+    for c in range(3):
+        sh[:, 0, c] = column(_DC[c])
+        for j in range(1, k):
+            sh[:, j, c] = column(f"f_rest_{c * (k - 1) + j - 1}")
+
+    index = {}
+    for name in _INDEX:
+        if name in cols:
+            col = cols[name]
+            if col.dtype.kind == "f" and not (col == np.round(col)).all():
+                i = int(np.argmax(col != np.round(col)))
+                raise ClearsplatError(f"must hold integers, got {col[i]} at vertex {i}",
+                                      path=path, field=name)
+            if col.dtype == np.uint64 and (col > np.iinfo(np.int64).max).any():
+                raise ClearsplatError("value too large", path=path, field=name)
+            values = col.astype(np.int64)
+            if name == "view_id" and ((values < 0) | (values > np.iinfo(np.int32).max)).any():
+                i = int(np.argmax((values < 0) | (values > np.iinfo(np.int32).max)))
+                raise ClearsplatError(f"view id {values[i]} at vertex {i} is negative or too "
+                                      "large", path=path, field=name)
+            raw[RAW_PREFIX + name] = col
+            index[name] = values.astype(np.int32) if name == "view_id" else values
+
+    known = set(_REQUIRED) | set(_INDEX) | {name for _, name in rest}
+    extra = {name: col for name, col in cols.items() if name not in known}
+    extra.update(raw)
+    g = Gaussians(means, scales, quats, opacities, sh, extra)
+    g.validate(path=path)
+    # Property order, type spellings and comments, for a byte-identical rewrite of an
+    # unchanged set (lost with a copy, in which case the canonical 3DGS order is used).
+    g._ply_layout = (tuple(cols), dict(types), tuple(comments))
+    return g, index.get("view_id"), index.get("pixel_id")
+
+
+# ------------------------------------------------------------------------------------------------
+# writing
+# ------------------------------------------------------------------------------------------------
+def write_ply(path, gaussians: Gaussians, *, view_id=None, pixel_id=None) -> None:
+    """Write Gaussians as a binary little-endian 3DGS-layout PLY (atomically).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; written to a temporary file beside it, then renamed over it.
+    gaussians : Gaussians
+        Validated first. Public ``extra`` entries must be (N,) numeric arrays; they are
+        written with their dtype. Raw columns kept by :func:`read_ply` are reused where the
+        in-memory value is unchanged (see the module docstring).
+    view_id : (N,) array_like of int, optional
+        Written as the ``view_id`` property when given.
+    pixel_id : (N,) array_like of int, optional
+        Written as the ``pixel_id`` property when given (-1: not pixel-aligned).
+
+    Raises
+    ------
+    ClearsplatError
+        If the Gaussians are invalid, an extra property cannot be stored in a PLY, or
+        ``view_id``/``pixel_id`` have the wrong shape or values.
+    """
+    path = Path(path)
+    g = gaussians
+    g.validate(path=path)
+    n, k = len(g), g.sh.shape[1]
+    cols: dict = {}
+    for j, c in enumerate(_XYZ):
+        cols[c] = _reuse_raw(g, c, g.means[:, j], _identity_f32, g.means[:, j])
+    public = {name: v for name, v in g.extra.items() if not name.startswith(RAW_PREFIX)}
+    for name, v in public.items():
+        _check_extra(name, v, n, path)
+    for c in _NORMALS:
+        if c in public:
+            cols[c] = public[c]
+    for c in range(3):
+        cols[_DC[c]] = _reuse_raw(g, _DC[c], g.sh[:, 0, c], _identity_f32, g.sh[:, 0, c])
+    for c in range(3):
+        for j in range(1, k):
+            name = f"f_rest_{c * (k - 1) + j - 1}"
+            cols[name] = _reuse_raw(g, name, g.sh[:, j, c], _identity_f32, g.sh[:, j, c])
+    cols["opacity"] = _reuse_raw(g, "opacity", g.opacities, _opacity_from_logit,
+                                 lambda: _logit_from_opacity(g.opacities))
+    for j, c in enumerate(_SCALE):
+        cols[c] = _reuse_raw(g, c, g.scales[:, j], _scale_from_log,
+                             lambda j=j: _log_from_scale(g.scales[:, j]))
+    for j, c in enumerate(_ROT):
+        cols[c] = _reuse_raw(g, c, g.quats[:, j], _identity_f32, g.quats[:, j])
+    for name, v in public.items():
+        if name not in _NORMALS:
+            cols[name] = v
+    for name, values, low in (("view_id", view_id, 0), ("pixel_id", pixel_id, -1)):
+        if values is not None:
+            cols[name] = _index_column(g, name, values, n, low, path)
+
+    order = list(cols)
+    tokens = {name: _CANONICAL[cols[name].dtype.str[1:]] for name in order}
+    comments: tuple = ()
+    layout = getattr(g, "_ply_layout", None)
+    if layout is not None and set(layout[0]) == set(order):
+        order = list(layout[0])
+        comments = layout[2]
+        for name, token in layout[1].items():
+            if _TYPES.get(token) == cols[name].dtype.str[1:]:
+                tokens[name] = token
+
+    lines = ["ply", "format binary_little_endian 1.0", *comments, f"element vertex {n}"]
+    lines += [f"property {tokens[name]} {name}" for name in order]
+    lines.append("end_header")
+    header = ("\n".join(lines) + "\n").encode("ascii")
+    table = np.empty(n, dtype=[(name, "<" + cols[name].dtype.str[1:]) for name in order])
+    for name in order:
+        table[name] = cols[name]
+    atomic_write_bytes(path, header + table.tobytes())
+
+
+def _reuse_raw(g: Gaussians, name: str, memory: np.ndarray, to_memory, fresh) -> np.ndarray:
+    """The column to write: raw on-disk values where ``memory`` still equals their image."""
+    memory = np.ascontiguousarray(memory, dtype=np.float32)
+    raw = g.extra.get(RAW_PREFIX + name)
+    if raw is None or raw.shape != memory.shape:
+        return fresh() if callable(fresh) else memory
+    same = to_memory(raw).view(np.uint32) == memory.view(np.uint32)
+    if same.all():
+        return raw
+    new = fresh() if callable(fresh) else memory
+    if raw.dtype.kind != "f":
+        return new
+    out = raw.copy()
+    out[~same] = new[~same]
+    return out
+
+
+def _index_column(g, name, values, n, low, path) -> np.ndarray:
+    arr = np.asarray(values)
+    if arr.shape != (n,):
+        raise ClearsplatError(f"expected {n} values, got shape {arr.shape}", path=path,
+                              field=name)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind != "f" or not (np.isfinite(arr) & (arr == np.round(arr))).all():
+            raise ClearsplatError("must hold integers", path=path, field=name)
+    arr = arr.astype(np.int64)
+    if n and arr.min() < low:
+        raise ClearsplatError(f"values must be >= {low}, got {arr.min()}", path=path,
+                              field=name)
+    raw = g.extra.get(RAW_PREFIX + name)
+    if raw is not None and raw.shape == (n,) and (raw.astype(np.int64) == arr).all():
+        return raw
+    if n and arr.max() > np.iinfo(np.int32).max:
+        return arr
+    return arr.astype(np.int32)
+
+
+def _check_extra(name: str, v: np.ndarray, n: int, path) -> None:
+    reserved = set(_REQUIRED) | set(_INDEX)
+    if name in reserved or _REST_RE.match(name):
+        raise ClearsplatError("an extra property may not reuse the name of a 3DGS property",
+                              path=path, field=name)
+    if not name or not _NAME_RE.match(name) or not name.isascii():
+        raise ClearsplatError("an extra property name must be non-empty ASCII without spaces",
+                              path=path, field=repr(name))
+    if v.shape != (n,) or v.dtype.str[1:] not in _CANONICAL:
+        raise ClearsplatError(f"an extra property must be an ({n},) array of a PLY number "
+                              f"type, got shape {v.shape} and dtype {v.dtype}",
+                              path=path, field=name)
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as e:
+        raise ClearsplatError(f"cannot write here ({e.strerror})", path=path,
+                              field="file") from None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
