@@ -1,12 +1,15 @@
 """clearsplat: remove transient distractors from feed-forward 3D Gaussian Splatting predictions.
 
 Conventions (axes, matrices, quaternion order, pixel centres, SH layout) are on one page:
-``docs/conventions.md``.
+``docs/conventions.md``; the method and every option of the filter: ``docs/method.md``.
 """
 
 from .cameras import Camera
 from .errors import ClearsplatError
+from .filter import Candidate, FilterConfig, FilterResult, filter_distractors
 from .io import load_scene, read_ply, save_scene, write_ply
+from .render import (Contributions, PreparedView, RenderResult, TilePatch, contributions,
+                     prepare, render, render_batch)
 from .scene import Gaussians, Scene
 
 __version__ = "0.1.0"
@@ -14,4 +17,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Camera", "ClearsplatError", "Gaussians", "Scene", "__version__",
     "load_scene", "read_ply", "save_scene", "write_ply",
+    "render", "render_batch", "contributions", "prepare",
+    "RenderResult", "Contributions", "PreparedView", "TilePatch",
+    "filter_distractors", "FilterConfig", "FilterResult", "Candidate",
 ]

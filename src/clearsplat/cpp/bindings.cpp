@@ -1,12 +1,185 @@
-// Python bindings for the native core. Validation and defaults live in Python
-// (clearsplat/_render.py); this file only exposes the kernels.
+// Python bindings for the native core: one function per kernel. Defaults, validation and
+// conversions live in Python (clearsplat/_render.py); the checks here only guard memory.
+// Every kernel runs without the GIL.
 #include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
 #include <omp.h>
 
+#include <cstdlib>
+#include <stdexcept>
+#include <string>
+
+#include "raster.h"
+
 namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace {
+
+template <class T>
+using In = nb::ndarray<const T, nb::c_contig, nb::device::cpu>;
+template <class T>
+using Out = nb::ndarray<T, nb::c_contig, nb::device::cpu>;
+
+void require(bool ok, const char* what) {
+    if (!ok) throw std::invalid_argument(std::string("clearsplat._core: ") + what);
+}
+
+// Hands a malloc'ed buffer to NumPy, which frees it with the array.
+template <class T>
+nb::ndarray<nb::numpy, T> owned(T* data, std::initializer_list<size_t> shape) {
+    nb::capsule owner(data, [](void* p) noexcept { std::free(p); });
+    return nb::ndarray<nb::numpy, T>(data, shape, owner);
+}
+
+int threads(int n) { return n > 0 ? n : omp_get_max_threads(); }
+
+cs::ViewData view_of(const In<float>& splats, const In<int64_t>& offsets,
+                     const In<int32_t>& lists, int width, int height) {
+    require(splats.ndim() == 2 && splats.shape(1) == 12, "splats must be (V, 12)");
+    cs::ViewData v;
+    v.splats = reinterpret_cast<const cs::Splat*>(splats.data());
+    v.num = int64_t(splats.shape(0));
+    v.width = width;
+    v.height = height;
+    v.grid_w = (width + cs::kTile - 1) / cs::kTile;
+    v.grid_h = (height + cs::kTile - 1) / cs::kTile;
+    require(width > 0 && height > 0, "bad image size");
+    require(int64_t(offsets.size()) == int64_t(v.num_tiles()) + 1, "tile offsets size");
+    v.tile_offsets = offsets.data();
+    v.tile_lists = lists.data();
+    require(v.tile_offsets[v.num_tiles()] == int64_t(lists.size()), "tile lists size");
+    return v;
+}
+
+const uint8_t* keep_of(const In<uint8_t>& keep, int64_t n) {
+    if (keep.size() == 0) return nullptr;
+    require(int64_t(keep.size()) == n, "keep size");
+    return keep.data();
+}
+
+nb::tuple project(In<float> means, In<float> scales, In<float> quats, In<float> opacities,
+                  In<float> sh, In<uint8_t> keep, In<double> view, In<double> intrinsics,
+                  In<double> campos, int width, int height, double near_plane, int num_threads) {
+    const int64_t n = means.ndim() == 2 ? int64_t(means.shape(0)) : -1;
+    require(means.ndim() == 2 && means.shape(1) == 3, "means must be (N, 3)");
+    require(int64_t(scales.size()) == 3 * n && int64_t(quats.size()) == 4 * n &&
+                int64_t(opacities.size()) == n, "per-Gaussian array sizes");
+    require(sh.ndim() == 3 && int64_t(sh.shape(0)) == n && sh.shape(2) == 3, "sh must be (N, K, 3)");
+    require(view.size() == 12 && intrinsics.size() == 4 && campos.size() == 3, "camera sizes");
+    cs::ProjectInputs in{means.data(), scales.data(), quats.data(), opacities.data(), sh.data(),
+                         int(sh.shape(1)), n, keep_of(keep, n)};
+    cs::ProjectParams p;
+    for (int k = 0; k < 12; ++k) p.view[k] = view.data()[k];
+    p.fx = intrinsics.data()[0], p.fy = intrinsics.data()[1];
+    p.cx = intrinsics.data()[2], p.cy = intrinsics.data()[3];
+    for (int k = 0; k < 3; ++k) p.campos[k] = campos.data()[k];
+    p.width = width, p.height = height, p.near_plane = near_plane;
+    cs::ProjectResult r;
+    {
+        nb::gil_scoped_release release;
+        r = cs::project(in, p, threads(num_threads));
+    }
+    const size_t v = size_t(r.num);
+    return nb::make_tuple(owned(reinterpret_cast<float*>(r.splats), {v, 12}),
+                          owned(reinterpret_cast<uint16_t*>(r.rects), {v, 4}),
+                          owned(r.index, {v}));
+}
+
+nb::tuple bin_tiles(In<uint16_t> rects, int grid_w, int grid_h, int num_threads) {
+    require(rects.ndim() == 2 && rects.shape(1) == 4, "rects must be (V, 4)");
+    cs::BinResult r;
+    {
+        nb::gil_scoped_release release;
+        r = cs::bin_tiles(reinterpret_cast<const cs::Rect*>(rects.data()), int64_t(rects.shape(0)),
+                          grid_w, grid_h, threads(num_threads));
+    }
+    return nb::make_tuple(owned(r.offsets, {size_t(grid_w) * grid_h + 1}),
+                          owned(r.lists, {size_t(r.num_pairs)}));
+}
+
+nb::tuple tiles_touched(In<uint16_t> rects, In<int64_t> group_offsets, In<int32_t> ids,
+                        int grid_w, int grid_h, int num_threads) {
+    const int64_t groups = int64_t(group_offsets.size()) - 1;
+    require(groups >= 0 && group_offsets.data()[groups] == int64_t(ids.size()), "group offsets");
+    cs::TileSets r;
+    {
+        nb::gil_scoped_release release;
+        r = cs::tiles_touched(reinterpret_cast<const cs::Rect*>(rects.data()), group_offsets.data(),
+                              ids.data(), groups, grid_w, grid_h, threads(num_threads));
+    }
+    return nb::make_tuple(owned(r.offsets, {size_t(groups) + 1}), owned(r.tiles, {size_t(r.total)}));
+}
+
+void composite(In<float> splats, In<int64_t> offsets, In<int32_t> lists, In<uint8_t> keep,
+               In<int32_t> tiles, int width, int height, In<float> background, Out<float> rgb,
+               Out<float> alpha, Out<float> depth, int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    const int64_t px = int64_t(width) * height;
+    require(int64_t(rgb.size()) == 3 * px && int64_t(alpha.size()) == px &&
+                int64_t(depth.size()) == px && background.size() == 3, "output sizes");
+    nb::gil_scoped_release release;
+    cs::composite_image(v, keep_of(keep, v.num), tiles.data(), int64_t(tiles.size()),
+                        background.data(), rgb.data(), alpha.data(), depth.data(),
+                        threads(num_threads));
+}
+
+void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
+                       In<uint16_t> rects, In<uint8_t> keep, In<int64_t> removal_offsets,
+                       In<int32_t> removal_ids, In<int64_t> task_offsets, In<int32_t> task_tiles,
+                       int width, int height, In<float> background, Out<float> rgb,
+                       Out<float> alpha, Out<float> depth, int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    const int64_t removals = int64_t(removal_offsets.size()) - 1;
+    require(removals >= 0 && int64_t(task_offsets.size()) == removals + 1, "removal offsets");
+    const int64_t tasks = task_offsets.data()[removals];
+    require(tasks == int64_t(task_tiles.size()), "task tiles");
+    require(int64_t(rgb.size()) == 3 * cs::kTilePixels * tasks &&
+                int64_t(alpha.size()) == cs::kTilePixels * tasks &&
+                int64_t(depth.size()) == cs::kTilePixels * tasks, "patch sizes");
+    require(int64_t(rects.size()) == 4 * v.num, "rects size");
+    nb::gil_scoped_release release;
+    cs::composite_patches(v, reinterpret_cast<const cs::Rect*>(rects.data()), keep_of(keep, v.num),
+                          removal_offsets.data(), removal_ids.data(), removals, task_offsets.data(),
+                          task_tiles.data(), background.data(), rgb.data(), alpha.data(),
+                          depth.data(), threads(num_threads));
+}
+
+nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
+                        In<uint8_t> keep, In<uint8_t> mask, int width, int height,
+                        int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    require(int64_t(mask.size()) == int64_t(width) * height, "mask size");
+    cs::ContribResult r;
+    {
+        nb::gil_scoped_release release;
+        r = cs::contributions(v, keep_of(keep, v.num), mask.data(), threads(num_threads));
+    }
+    const size_t m = size_t(r.num);
+    return nb::make_tuple(owned(r.pixel, {m}), owned(r.id, {m}), owned(r.weight, {m}));
+}
+
+}  // namespace
 
 NB_MODULE(_core, m) {
-    m.doc() = "clearsplat native CPU Gaussian rasterizer";
+    m.doc() = "clearsplat native CPU Gaussian rasterizer (kernels; use clearsplat.render)";
     m.def("max_threads", []() { return omp_get_max_threads(); },
           "Number of threads the native core uses by default.");
+    m.def("project", &project, "means"_a, "scales"_a, "quats"_a, "opacities"_a, "sh"_a, "keep"_a,
+          "view"_a, "intrinsics"_a, "campos"_a, "width"_a, "height"_a, "near"_a, "num_threads"_a,
+          "Project, cull and depth-sort: (splats (V, 12) f32, rects (V, 4) u16, index (V,) i32).");
+    m.def("bin_tiles", &bin_tiles, "rects"_a, "grid_w"_a, "grid_h"_a, "num_threads"_a,
+          "Tile lists: (offsets (T + 1,) i64, lists (P,) i32).");
+    m.def("tiles_touched", &tiles_touched, "rects"_a, "group_offsets"_a, "ids"_a, "grid_w"_a,
+          "grid_h"_a, "num_threads"_a, "Sorted unique tiles per id group: (offsets, tiles).");
+    m.def("composite", &composite, "splats"_a, "offsets"_a, "lists"_a, "keep"_a, "tiles"_a,
+          "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
+          "Composite the given tiles into full-size outputs (in place).");
+    m.def("composite_patches", &composite_patches, "splats"_a, "offsets"_a, "lists"_a, "rects"_a,
+          "keep"_a, "removal_offsets"_a, "removal_ids"_a, "task_offsets"_a, "task_tiles"_a,
+          "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
+          "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place).");
+    m.def("contributions", &contributions, "splats"_a, "offsets"_a, "lists"_a, "keep"_a,
+          "mask"_a, "width"_a, "height"_a, "num_threads"_a,
+          "Every added (pixel, id, weight) at the masked pixels.");
 }

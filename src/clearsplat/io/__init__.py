@@ -6,8 +6,11 @@ Formats are described in the module docstrings of :mod:`clearsplat.io.bundle` (b
 """
 
 from .bundle import load_cameras, load_scene, save_cameras, save_scene
+from .colmap import read_colmap
+from .exports import EXPORT_PRESETS, read_export
 from .images import read_image, write_image
 from .ply import read_ply, write_ply
 
 __all__ = ["load_scene", "save_scene", "load_cameras", "save_cameras",
-           "read_ply", "write_ply", "read_image", "write_image"]
+           "read_ply", "write_ply", "read_image", "write_image", "read_colmap",
+           "read_export", "EXPORT_PRESETS"]

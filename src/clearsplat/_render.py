@@ -1,0 +1,129 @@
+"""Thin wrappers over the native rasterizer kernels (``clearsplat._core``).
+
+One function per kernel: each makes its inputs contiguous with the dtype the kernel takes,
+checks shapes, and calls the kernel (which releases the GIL). Defaults and the validation of
+user input live in :mod:`clearsplat.render`; these functions assume that has happened.
+
+The packed per-Gaussian record (``splats``, (V, 12) float32) is, per row: ``u, v`` (projected
+centre), ``conic_a, conic_b, conic_c`` (inverse 2D covariance), ``opacity``, ``r, g, b``,
+``depth`` (camera z), then two float slots holding the int16 pixel box ``x0, x1`` and
+``y0, y1`` outside which alpha stays below 1/255 (see ``cpp/raster.h``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+
+__all__ = ["TILE", "project", "bin_tiles", "tiles_touched", "composite", "composite_patches",
+           "contributions", "max_threads"]
+
+#: Tile edge in pixels (``cs::kTile``).
+TILE = 16
+_NO_KEEP = np.empty(0, dtype=np.uint8)
+
+
+def max_threads() -> int:
+    """Threads the native core uses when ``num_threads`` is 0."""
+    return int(_core.max_threads())
+
+
+def _c(a, dtype) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+def _mask(keep) -> np.ndarray:
+    """(n,) bool or uint8 -> uint8 view, or an empty array for None (keep everything)."""
+    if keep is None:
+        return _NO_KEEP
+    keep = np.ascontiguousarray(keep)
+    return keep.view(np.uint8) if keep.dtype == np.bool_ else keep.astype(np.uint8)
+
+
+def _expect(a: np.ndarray, shape: tuple, name: str) -> None:
+    if a.shape != shape:
+        raise ValueError(f"clearsplat._render: {name} has shape {a.shape}, expected {shape}")
+
+
+def project(means, scales, quats, opacities, sh, keep, world_to_camera, K, position,
+            width: int, height: int, near: float, num_threads: int):
+    """Project, cull and sort front to back.
+
+    Returns
+    -------
+    splats : (V, 12) float32
+        Packed records of the visible Gaussians, ordered by camera z (ties by index).
+    rects : (V, 4) uint16
+        Inclusive tile range ``x0, y0, x1, y1`` each one is binned into.
+    index : (V,) int32
+        Gaussian index of each visible Gaussian.
+    """
+    means, scales, quats = _c(means, np.float32), _c(scales, np.float32), _c(quats, np.float32)
+    opacities, sh = _c(opacities, np.float32), _c(sh, np.float32)
+    n = means.shape[0]
+    _expect(means, (n, 3), "means")
+    _expect(scales, (n, 3), "scales")
+    _expect(quats, (n, 4), "quats")
+    _expect(opacities, (n,), "opacities")
+    _expect(sh, (n, sh.shape[1] if sh.ndim == 3 else -1, 3), "sh")
+    keep = _mask(keep)
+    if keep.size:
+        _expect(keep, (n,), "keep")
+    view = _c(np.asarray(world_to_camera, dtype=np.float64)[:3, :4], np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dtype=np.float64)
+    return _core.project(means, scales, quats, opacities, sh, keep, view, intrinsics,
+                         _c(position, np.float64), int(width), int(height), float(near),
+                         int(num_threads))
+
+
+def bin_tiles(rects, grid_w: int, grid_h: int, num_threads: int):
+    """Tile lists: ``offsets`` (grid_w * grid_h + 1,) int64 and ``lists`` (P,) int32."""
+    rects = _c(rects, np.uint16)
+    _expect(rects, (rects.shape[0], 4), "rects")
+    return _core.bin_tiles(rects, int(grid_w), int(grid_h), int(num_threads))
+
+
+def tiles_touched(rects, group_offsets, ids, grid_w: int, grid_h: int, num_threads: int):
+    """Sorted unique tiles of each group of ids: CSR ``(offsets (G + 1,) int64, tiles int32)``."""
+    group_offsets, ids = _c(group_offsets, np.int64), _c(ids, np.int32)
+    return _core.tiles_touched(_c(rects, np.uint16), group_offsets, ids, int(grid_w),
+                               int(grid_h), int(num_threads))
+
+
+def composite(splats, offsets, lists, keep, tiles, width: int, height: int, background,
+              rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray, num_threads: int) -> None:
+    """Composite ``tiles`` into the float32 outputs (H, W, 3), (H, W), (H, W) in place."""
+    for a, shape in ((rgb, (height, width, 3)), (alpha, (height, width)), (depth, (height, width))):
+        if a.dtype != np.float32 or not a.flags.c_contiguous or a.shape != shape:
+            raise ValueError(f"clearsplat._render: outputs must be C-contiguous float32 {shape}")
+    _core.composite(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
+                    _mask(keep), _c(tiles, np.int32), int(width), int(height),
+                    _c(background, np.float32), rgb, alpha, depth, int(num_threads))
+
+
+def composite_patches(splats, offsets, lists, rects, keep, removal_offsets, removal_ids,
+                      task_offsets, task_tiles, width: int, height: int, background,
+                      num_threads: int):
+    """Re-composite (removal, tile) tasks; returns patches (T, 16, 16, 3), (T, 16, 16) x 2."""
+    task_tiles = _c(task_tiles, np.int32)
+    t = task_tiles.shape[0]
+    rgb = np.empty((t, TILE, TILE, 3), dtype=np.float32)
+    alpha = np.empty((t, TILE, TILE), dtype=np.float32)
+    depth = np.empty((t, TILE, TILE), dtype=np.float32)
+    _core.composite_patches(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
+                            _c(rects, np.uint16), _mask(keep), _c(removal_offsets, np.int64),
+                            _c(removal_ids, np.int32), _c(task_offsets, np.int64), task_tiles,
+                            int(width), int(height), _c(background, np.float32), rgb, alpha,
+                            depth, int(num_threads))
+    return rgb, alpha, depth
+
+
+def contributions(splats, offsets, lists, keep, mask, width: int, height: int,
+                  num_threads: int):
+    """Added ``(pixel int64, id int32, weight float32)`` at the pixels where ``mask`` is set."""
+    mask = _mask(mask)
+    _expect(mask, (height, width), "mask")
+    return _core.contributions(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
+                               _mask(keep), mask, int(width), int(height), int(num_threads))

@@ -1,0 +1,143 @@
+"""pixelSplat, MVSplat, DepthSplat and ReSplat: Gaussians per pixel (or per latent cell).
+
+Native output (``src/model/types.py`` of each repository, a ``Gaussians`` dataclass):
+``means [B, G, 3]``, ``covariances [B, G, 3, 3]`` (world), ``harmonics [B, G, 3, d_sh]``
+(channel axis before the SH axis), ``opacities [B, G]`` in [0, 1]. The encoders flatten
+``"b v r srf spp ... -> b (v r srf spp) ..."`` with ``r = (h w)`` row-major, so Gaussian
+``((v * H + row) * W + col) * spp + s`` comes from pixel ``(row, col)`` of view ``v``.
+Cameras are OpenCV camera-to-world ``extrinsics [B, V, 4, 4]`` and ``intrinsics [B, V, 3, 3]``
+normalised by the image size. Sources and details: ``docs/backbones.md``.
+"""
+
+from __future__ import annotations
+
+from ..errors import ClearsplatError
+from ..scene import Scene
+from ._common import (cameras_from_model, covariance_to_scales_quats, field_of, grid_layout,
+                      images_checked, make_scene, opacities_checked, sh_to_clearsplat,
+                      take_batch, to_numpy)
+
+__all__ = ["from_depthsplat", "from_mvsplat", "from_pixelsplat", "from_resplat"]
+
+
+def native_arrays(gaussians, batch: int, max_sh_degree: int):
+    """means (G, 3), covariances (G, 3, 3), sh (G, K, 3), opacities (G,) of one batch item."""
+    means = take_batch(to_numpy(field_of(gaussians, "means"), "means"), batch, 2, "means")
+    cov = take_batch(to_numpy(field_of(gaussians, "covariances"), "covariances"), batch, 3,
+                     "covariances")
+    harm = to_numpy(field_of(gaussians, "harmonics"), "harmonics")
+    harm = take_batch(harm, batch, 3, "harmonics")
+    op = to_numpy(field_of(gaussians, "opacities"), "opacities")
+    op = take_batch(op, batch, 1 if op.ndim in (1, 2) and op.shape[-1] != 1 else 2, "opacities")
+    g = means.shape[0]
+    if means.shape != (g, 3):
+        raise ClearsplatError(f"expected (G, 3), got {means.shape}", field="means")
+    if cov.shape != (g, 3, 3):
+        raise ClearsplatError(f"expected ({g}, 3, 3), got {cov.shape}", field="covariances")
+    sh = sh_to_clearsplat(harm, max_sh_degree=max_sh_degree)
+    if sh.shape[0] != g:
+        raise ClearsplatError(f"expected {g} Gaussians, got shape {harm.shape}",
+                              field="harmonics")
+    return means, cov, sh, opacities_checked(op, g)
+
+
+def _from_grid(gaussians, extrinsics, intrinsics, images, *, height, width, batch, spp, grid,
+               allow_coarse, max_sh_degree, normalized_intrinsics, model) -> Scene:
+    cameras = cameras_from_model(extrinsics, intrinsics, batch=batch, height=height,
+                                 width=width, normalized_intrinsics=normalized_intrinsics)
+    means, cov, sh, op = native_arrays(gaussians, batch, max_sh_degree)
+    view_id, pixel_id, _ = grid_layout(len(means), num_views=len(cameras), height=height,
+                                       width=width, spp=spp, grid=grid,
+                                       allow_coarse=allow_coarse, model=model)
+    scales, quats = covariance_to_scales_quats(cov)
+    return make_scene(means, scales, quats, op, sh, view_id, pixel_id, cameras,
+                      images_checked(images, batch, len(cameras), height, width))
+
+
+def from_depthsplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
+                    batch: int = 0, spp: int | None = None, max_sh_degree: int = 3,
+                    normalized_intrinsics: bool = True) -> Scene:
+    """A scene from the native output of DepthSplat (and pixelSplat, MVSplat).
+
+    Parameters
+    ----------
+    gaussians : Gaussians dataclass or dict
+        With ``means [B, G, 3]``, ``covariances [B, G, 3, 3]`` (world frame),
+        ``harmonics [B, G, 3, d_sh]`` (already rotated to world by the model) and
+        ``opacities [B, G]`` in [0, 1]; PyTorch tensors (any device/dtype) or NumPy arrays.
+        The batch axis may be left out. ``G = V * H * W * spp`` in the order
+        ``((v * H + row) * W + col) * spp + s``.
+    extrinsics : [B, V, 4, 4]
+        OpenCV camera-to-world, the ``context["extrinsics"]`` the model was given.
+    intrinsics : [B, V, 3, 3]
+        ``context["intrinsics"]``: normalised (``fx/W, fy/H, cx/W, cy/H``) unless
+        ``normalized_intrinsics=False`` (then in pixels).
+    images : [B, V, 3, H, W] or [B, V, H, W, 3], optional
+        ``context["image"]`` in [0, 1] (before any normalisation shim). Needed by the filter.
+    height, width : int
+        Input image size in pixels.
+    batch : int
+        Which batch item to adapt.
+    spp : int, optional
+        Gaussians per pixel (``num_surfaces * gaussians_per_pixel``); inferred from ``G``.
+    max_sh_degree : int
+        Bands above it are dropped (3 at most: clearsplat stores degree 0 to 3).
+    normalized_intrinsics : bool
+
+    Returns
+    -------
+    Scene
+        Pixel-aligned: ``view_id = v``, ``pixel_id = row * W + col``. Scales and rotations come
+        from the covariances (:func:`clearsplat.adapters.covariance_to_scales_quats`).
+
+    Raises
+    ------
+    ClearsplatError
+        Naming the field: wrong shapes, ``G`` not a multiple of ``V * H * W`` (trimmed
+        borders), opacities outside [0, 1] (logits), images outside [0, 1], non-rigid cameras,
+        covariances that are not positive semi-definite.
+    """
+    return _from_grid(gaussians, extrinsics, intrinsics, images, height=height, width=width,
+                      batch=batch, spp=spp, grid=None, allow_coarse=False,
+                      max_sh_degree=max_sh_degree, normalized_intrinsics=normalized_intrinsics,
+                      model="DepthSplat")
+
+
+def from_mvsplat(gaussians, extrinsics, intrinsics, images=None, **kwargs) -> Scene:
+    """MVSplat's native output; same layout and options as :func:`from_depthsplat`."""
+    return from_depthsplat(gaussians, extrinsics, intrinsics, images, **kwargs)
+
+
+def from_pixelsplat(gaussians, extrinsics, intrinsics, images=None, **kwargs) -> Scene:
+    """pixelSplat's native output; same layout and options as :func:`from_depthsplat`."""
+    return from_depthsplat(gaussians, extrinsics, intrinsics, images, **kwargs)
+
+
+def from_resplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
+                 batch: int = 0, grid: tuple | None = None, max_sh_degree: int = 3,
+                 normalized_intrinsics: bool = True) -> Scene:
+    """A scene from ReSplat's native output: Gaussians on a per-view latent grid.
+
+    ReSplat predicts one Gaussian per cell of a ``H/f x W/f`` grid per view (``f`` =
+    ``latent_downsample``, divided by ``sqrt(init_gaussian_multiple)``, which the encoder
+    unrolls into a finer grid ``"(h x w y)"``), ordered ``(v, row, col)``.
+
+    Parameters
+    ----------
+    grid : (rows, cols), optional
+        The per-view grid; inferred from ``G / V`` and the image aspect ratio.
+    Other parameters
+        As in :func:`from_depthsplat` (``spp`` is 1). The harmonics are used as the model
+        renders them (its encoder does not rotate them; the renderer reads them as world-frame).
+
+    Returns
+    -------
+    Scene
+        ``view_id`` from the grid; ``pixel_id = -1`` unless the grid is the full image grid
+        (then pixel-aligned). Association to pixels goes through the rasterizer
+        (:func:`clearsplat.contributions`).
+    """
+    return _from_grid(gaussians, extrinsics, intrinsics, images, height=height, width=width,
+                      batch=batch, spp=1 if grid is not None else None, grid=grid,
+                      allow_coarse=True, max_sh_degree=max_sh_degree,
+                      normalized_intrinsics=normalized_intrinsics, model="ReSplat")

@@ -1,0 +1,244 @@
+// Per-tile front-to-back alpha compositing (the 3DGS forward pass), for full images, for
+// batched incremental tile patches and for the per-pixel contribution lists.
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <vector>
+
+#include "raster.h"
+#include "simd.h"
+
+namespace cs {
+
+namespace {
+
+constexpr int64_t kPrefetch = 8;
+
+struct Entry {  // one added contribution, for contributions()
+    int32_t pixel_in_tile;
+    int32_t id;
+    float weight;
+};
+
+struct TileState {
+    alignas(64) float T[kTilePixels];
+    alignas(64) float r[kTilePixels];
+    alignas(64) float g[kTilePixels];
+    alignas(64) float b[kTilePixels];
+    alignas(64) float d[kTilePixels];
+    alignas(64) int32_t done[kTilePixels];  // 0 or -1 (lane masks)
+    int remaining;
+    int x0, y0, w, h;  // tile origin in pixels and its size inside the image
+
+    // `mask` (H, W) or null: pixels outside the mask (and outside the image) start done.
+    void reset(const ViewData& v, int tile, const uint8_t* mask) {
+        x0 = (tile % v.grid_w) * kTile;
+        y0 = (tile / v.grid_w) * kTile;
+        w = std::min(kTile, v.width - x0);
+        h = std::min(kTile, v.height - y0);
+        remaining = 0;
+        for (int p = 0; p < kTilePixels; ++p) {
+            const int lx = p % kTile, ly = p / kTile;
+            bool active = lx < w && ly < h;
+            if (active && mask) active = mask[int64_t(y0 + ly) * v.width + x0 + lx] != 0;
+            T[p] = 1.0f;
+            r[p] = g[p] = b[p] = d[p] = 0.0f;
+            done[p] = active ? 0 : -1;
+            remaining += active;
+        }
+    }
+};
+
+// Composites one tile's list into `s`, skipping ids with keep[id] == 0 and the ascending ids
+// in `removed`; appends every added contribution to `record` when given.
+//
+// Per pixel this is the 3DGS loop: skip power > 0 and alpha < 1/255, stop (without adding)
+// when T would fall below 1e-4, else add c * alpha * T. It runs eight pixels of a row at a
+// time over each Gaussian's pixel box; lanes outside the box or already done change nothing.
+CS_TARGET_CLONES
+void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int32_t* removed,
+                    int64_t num_removed, TileState& s, std::vector<Entry>* record) {
+    const int32_t* list = v.tile_lists + v.tile_offsets[tile];
+    const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
+    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
+    int64_t ri = 0;
+    for (int64_t k = 0; k < len && s.remaining > 0; ++k) {
+        // A tile's ids are scattered over the depth order: fetch records ahead of use.
+        if (k + kPrefetch < len) __builtin_prefetch(v.splats + list[k + kPrefetch]);
+        const int32_t id = list[k];
+        if (keep && !keep[id]) continue;
+        if (ri < num_removed) {
+            while (ri < num_removed && removed[ri] < id) ++ri;
+            if (ri < num_removed && removed[ri] == id) continue;
+        }
+        const Splat& gs = v.splats[id];
+        const int lx0 = std::max(int(gs.bx0) - s.x0, 0), lx1 = std::min(int(gs.bx1) - s.x0, s.w - 1);
+        const int ly0 = std::max(int(gs.by0) - s.y0, 0), ly1 = std::min(int(gs.by1) - s.y0, s.h - 1);
+        for (int ly = ly0; ly <= ly1; ++ly) {
+            const float dy = gs.v - (float(s.y0 + ly) + 0.5f);
+            for (int start = lx0; start <= lx1; start += 8) {
+                const int base = std::min(start, kTile - 8);  // the 8 lanes stay in the row
+                const int p = ly * kTile + base;
+                const i8 col = iota + base;
+                const i8 done = load(s.done + p);
+                i8 active = (col >= start) & (col <= lx1) & ~done;
+                if (!any(active)) continue;
+                const f8 dx = gs.u - (__builtin_convertvector(col + s.x0, f8) + 0.5f);
+                const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
+                active &= power <= 0.0f;
+                f8 alpha = gs.opacity * exp_nonpositive(power);
+                alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
+                active &= alpha >= kMinAlpha;
+                if (!any(active)) continue;
+                const f8 t = load(s.T + p);
+                const f8 test_t = t * (1.0f - alpha);
+                const i8 stop = active & (test_t < kMinTransmittance);
+                const i8 add = active & ~stop;
+                const f8 weight = alpha * t;
+                const f8 zero = splat(0.0f);
+                store(s.T + p, select(add, test_t, t));
+                store(s.r + p, load(s.r + p) + select(add, gs.rgb[0] * weight, zero));
+                store(s.g + p, load(s.g + p) + select(add, gs.rgb[1] * weight, zero));
+                store(s.b + p, load(s.b + p) + select(add, gs.rgb[2] * weight, zero));
+                store(s.d + p, load(s.d + p) + select(add, gs.depth * weight, zero));
+                if (any(stop)) {
+                    store(s.done + p, done | stop);
+                    s.remaining -= count(stop);
+                }
+                if (record)
+                    for (int l = 0; l < 8; ++l)
+                        if (add[l]) record->push_back(Entry{p + l, id, weight[l]});
+            }
+        }
+    }
+}
+
+// Writes pixel p of the tile state: rgb = C + T bg, alpha = 1 - T, depth = D / alpha.
+inline void finish_pixel(const TileState& s, int p, const float bg[3], float* rgb, float* alpha,
+                         float* depth) {
+    const float t = s.T[p];
+    const float a = 1.0f - t;
+    rgb[0] = s.r[p] + t * bg[0];
+    rgb[1] = s.g[p] + t * bg[1];
+    rgb[2] = s.b[p] + t * bg[2];
+    *alpha = a;
+    *depth = a > 0.0f ? s.d[p] / a : 0.0f;
+}
+
+}  // namespace
+
+void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tiles,
+                     int64_t num_tiles, const float bg[3], float* rgb, float* alpha,
+                     float* depth, int num_threads) {
+    if (!tiles) num_tiles = v.num_tiles();
+#pragma omp parallel num_threads(num_threads)
+    {
+        TileState s;
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t j = 0; j < num_tiles; ++j) {
+            const int tile = tiles ? tiles[j] : int(j);
+            s.reset(v, tile, nullptr);
+            composite_tile(v, tile, keep, nullptr, 0, s, nullptr);
+            for (int ly = 0; ly < s.h; ++ly)
+                for (int lx = 0; lx < s.w; ++lx) {
+                    const int64_t q = int64_t(s.y0 + ly) * v.width + s.x0 + lx;
+                    finish_pixel(s, ly * kTile + lx, bg, rgb + 3 * q, alpha + q, depth + q);
+                }
+        }
+    }
+}
+
+void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep,
+                       const int64_t* removal_offsets, const int32_t* removal_ids,
+                       int64_t num_removals, const int64_t* task_offsets,
+                       const int32_t* task_tiles, const float bg[3], float* rgb,
+                       float* alpha, float* depth, int num_threads) {
+    const int64_t num_tasks = task_offsets[num_removals];
+    // Bucket each removal's ids by the tasks (tiles) whose lists they are in.
+    std::vector<std::vector<int32_t>> removed(num_tasks);
+#pragma omp parallel num_threads(num_threads)
+    {
+        std::vector<int32_t> local(size_t(v.num_tiles()), -1);
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t r = 0; r < num_removals; ++r) {
+            for (int64_t j = task_offsets[r]; j < task_offsets[r + 1]; ++j) local[task_tiles[j]] = int32_t(j);
+            for (int64_t k = removal_offsets[r]; k < removal_offsets[r + 1]; ++k) {
+                const int32_t id = removal_ids[k];
+                const Rect& rc = rects[id];
+                for (int y = rc.y0; y <= rc.y1; ++y)
+                    for (int x = rc.x0; x <= rc.x1; ++x) {
+                        const int32_t j = local[y * v.grid_w + x];
+                        if (j >= 0) removed[j].push_back(id);
+                    }
+            }
+            for (int64_t j = task_offsets[r]; j < task_offsets[r + 1]; ++j) local[task_tiles[j]] = -1;
+        }
+    }
+#pragma omp parallel num_threads(num_threads)
+    {
+        TileState s;
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t j = 0; j < num_tasks; ++j) {
+            s.reset(v, task_tiles[j], nullptr);
+            composite_tile(v, task_tiles[j], keep, removed[j].data(), int64_t(removed[j].size()), s,
+                           nullptr);
+            float* prgb = rgb + int64_t(3) * kTilePixels * j;
+            float* palpha = alpha + int64_t(kTilePixels) * j;
+            float* pdepth = depth + int64_t(kTilePixels) * j;
+            for (int p = 0; p < kTilePixels; ++p) {
+                if (p % kTile < s.w && p / kTile < s.h) {
+                    finish_pixel(s, p, bg, prgb + 3 * p, palpha + p, pdepth + p);
+                } else {
+                    prgb[3 * p] = prgb[3 * p + 1] = prgb[3 * p + 2] = 0.0f;
+                    palpha[p] = pdepth[p] = 0.0f;
+                }
+            }
+        }
+    }
+}
+
+ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_t* mask,
+                            int num_threads) {
+    const int num_tiles = v.num_tiles();
+    std::vector<std::vector<Entry>> per_tile(num_tiles);
+    std::vector<int64_t> offsets(int64_t(v.width) * v.height + 1, 0);  // count per pixel first
+#pragma omp parallel num_threads(num_threads)
+    {
+        TileState s;
+#pragma omp for schedule(dynamic, 1)
+        for (int tile = 0; tile < num_tiles; ++tile) {
+            s.reset(v, tile, mask);
+            if (s.remaining == 0) continue;
+            std::vector<Entry>& out = per_tile[tile];
+            composite_tile(v, tile, keep, nullptr, 0, s, &out);
+            for (const Entry& e : out)
+                ++offsets[1 + int64_t(s.y0 + e.pixel_in_tile / kTile) * v.width + s.x0 +
+                          e.pixel_in_tile % kTile];
+        }
+    }
+    const int64_t num_pixels = int64_t(v.width) * v.height;
+    for (int64_t q = 0; q < num_pixels; ++q) offsets[q + 1] += offsets[q];
+    ContribResult res;
+    res.num = offsets[num_pixels];
+    const size_t cap = size_t(std::max<int64_t>(res.num, 1));
+    res.pixel = static_cast<int64_t*>(std::malloc(cap * sizeof(int64_t)));
+    res.id = static_cast<int32_t*>(std::malloc(cap * sizeof(int32_t)));
+    res.weight = static_cast<float*>(std::malloc(cap * sizeof(float)));
+    // Entries of a pixel are in compositing order within its tile; scatter keeps that order.
+#pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
+    for (int tile = 0; tile < num_tiles; ++tile) {
+        const int x0 = (tile % v.grid_w) * kTile, y0 = (tile / v.grid_w) * kTile;
+        for (const Entry& e : per_tile[tile]) {
+            const int64_t q = int64_t(y0 + e.pixel_in_tile / kTile) * v.width + x0 + e.pixel_in_tile % kTile;
+            const int64_t at = offsets[q]++;
+            res.pixel[at] = q;
+            res.id[at] = e.id;
+            res.weight[at] = e.weight;
+        }
+    }
+    return res;
+}
+
+}  // namespace cs

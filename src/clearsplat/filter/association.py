@@ -1,0 +1,150 @@
+"""From image regions to Gaussians, and the choice of verification views.
+
+Paper, end of "Distractor Proposal" and start of "Candidate Verification".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from ..render import contributions
+from ..scene import Scene
+
+__all__ = [
+    "ViewIndex", "region_gaussians", "member_pixels", "revealing_gaussians", "pixels_of",
+    "verification_views", "dilate",
+]
+
+
+class ViewIndex:
+    """Per-view lists of Gaussian indices and their pixel ids, built once per scene."""
+
+    def __init__(self, scene: Scene):
+        order = np.argsort(scene.view_id, kind="stable")
+        bounds = np.searchsorted(scene.view_id[order], np.arange(scene.num_views + 1))
+        self.members = [order[bounds[i]:bounds[i + 1]] for i in range(scene.num_views)]
+        self.pixels = [scene.pixel_id[m] for m in self.members]
+
+    def mask(self, view: int, n: int) -> np.ndarray:
+        """(N,) bool mask of the Gaussians of ``view``."""
+        out = np.zeros(n, dtype=bool)
+        out[self.members[view]] = True
+        return out
+
+
+def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: ViewIndex,
+                     min_weight: float = 0.05) -> np.ndarray:
+    """Gaussians of ``view`` that a pixel region maps to [C_k], sorted int64 indices.
+
+    Pixel-aligned Gaussians map through their ``pixel_id`` (several per pixel allowed). The
+    others (``pixel_id == -1``) map through the rasterizer association: compositing only the
+    Gaussians of ``view`` from its own camera, those whose blending weight (alpha * T) reaches
+    ``min_weight`` at some pixel of the region (the front surface of that view's prediction).
+
+    Parameters
+    ----------
+    pixels : (H, W) bool
+        The region in the image of ``view``.
+    """
+    members, pid = index.members[view], index.pixels[view]
+    flat = pixels.ravel()
+    aligned = pid >= 0
+    chosen = members[aligned][flat[pid[aligned]]]
+    if aligned.all() or not flat.any():
+        return np.sort(chosen)
+    own = np.zeros(len(scene), dtype=bool)
+    own[members] = True
+    contrib = contributions(scene, scene.cameras[view], pixels, keep=own)
+    g = contrib.gaussian[(contrib.weight >= min_weight)]
+    g = g[(scene.view_id[g] == view) & (scene.pixel_id[g] < 0)]
+    return np.union1d(chosen, g).astype(np.int64)
+
+
+def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
+    """Flat pixel of each Gaussian of ``view`` in that view's image, (M,) int64, -1 if none.
+
+    ``pixel_id`` where the model is pixel-aligned, otherwise the pixel its centre projects to.
+    """
+    members = index.members[view]
+    pix = index.pixels[view].copy()
+    loose = pix < 0
+    if loose.any():
+        cam = scene.cameras[view]
+        uv, z = cam.project(scene.gaussians.means[members[loose]])
+        with np.errstate(invalid="ignore"):
+            col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
+            row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
+        ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+        pix[loose] = np.where(ok, row * cam.width + col, -1).astype(np.int64)
+    return pix
+
+
+def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
+                        margin: float) -> np.ndarray:
+    """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
+
+    The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
+    farther surface. This applies it per Gaussian: a Gaussian of view i qualifies when its
+    camera-i depth is below ``(1 - margin)`` times the reference depth at its pixel (see
+    :func:`member_pixels`). Where the reference shows nothing, nothing is revealed and it does
+    not qualify.
+
+    Parameters
+    ----------
+    reference_depths : list of (H, W) float
+        Per input view, the expected depth of a render without that view's Gaussians (0 where
+        empty).
+    margin : float
+        Relative depth gap that counts as "in front".
+    """
+    out = np.zeros(len(scene), dtype=bool)
+    for view, members in enumerate(index.members):
+        if members.size == 0:
+            continue
+        z = scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
+        pix = member_pixels(scene, index, view)
+        behind = np.zeros(members.size)
+        valid = pix >= 0
+        behind[valid] = reference_depths[view].ravel()[pix[valid]]
+        out[members] = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind)
+    return out
+
+
+def pixels_of(scene: Scene, index: ViewIndex, view: int, selected: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of ``view`` holding one of its ``selected`` ((N,) bool) Gaussians."""
+    cam = scene.cameras[view]
+    out = np.zeros(cam.height * cam.width, dtype=bool)
+    pix = member_pixels(scene, index, view)
+    pix = pix[selected[index.members[view]] & (pix >= 0)]
+    out[pix] = True
+    return out.reshape(cam.height, cam.width)
+
+
+def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex) -> list[int]:
+    """The ``count`` other views that see the most centres of ``view``'s Gaussians [V_i].
+
+    Centres count when they have positive depth and fall inside the image; ties go to the
+    lower view index; ``view`` itself is never chosen.
+    """
+    means = scene.gaussians.means[index.members[view]]
+    counts = []
+    for j, cam in enumerate(scene.cameras):
+        if j == view:
+            continue
+        uv, z = cam.project(means)
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) \
+            & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        counts.append((-int(inside.sum()), j))
+    counts.sort()
+    return [j for _, j in counts[:count]]
+
+
+def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Dilate a (H, W) bool mask by a disk of ``radius`` pixels (Euclidean)."""
+    if radius <= 0 or not mask.any():
+        return mask.copy()
+    r = int(radius)
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    disk = (yy * yy + xx * xx) <= r * r
+    return ndimage.binary_dilation(mask, structure=disk)

@@ -1,0 +1,331 @@
+"""The whole filter: proposal, association, verification, removal.
+
+:func:`filter_distractors` runs the paper's procedure (see ``docs/method.md`` for every step
+and every option) on one scene and returns a :class:`FilterResult`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..errors import ClearsplatError
+from ..features import get_extractor
+from ..render import prepare
+from ..scene import Scene
+from .association import (ViewIndex, dilate, pixels_of, region_gaussians, revealing_gaussians,
+                          verification_views)
+from .config import FilterConfig
+from .proposal import ViewProposal, propose_view
+from .verify import Partial, Verifier
+
+__all__ = ["Candidate", "FilterResult", "filter_distractors"]
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(eq=False)
+class Candidate:
+    """One candidate region and what verification made of it.
+
+    Attributes
+    ----------
+    index : int
+    view : int
+        Input view it was proposed in.
+    range : int
+        Similarity range, 1 or 2.
+    pixels : (H, W) bool
+        The region [M_k].
+    gaussians : (M,) int64
+        Gaussians the region maps to [C_k].
+    expanded : (M',) int64 or None
+        Gaussians of the dilated region within the support [hat C_k], for candidates that
+        passed the individual test.
+    verify_views : list of int
+        The verification views [V_i].
+    scores : dict of str to float
+        ``"individual"``, ``"additional"`` and ``"joint"`` where run.
+    accepted : bool
+    reason : str
+        Why it was accepted or rejected.
+    """
+
+    index: int
+    view: int
+    range: int
+    pixels: np.ndarray
+    gaussians: np.ndarray
+    expanded: np.ndarray | None = None
+    verify_views: list = field(default_factory=list)
+    scores: dict = field(default_factory=dict)
+    accepted: bool = False
+    reason: str = "not verified"
+
+    def record(self) -> dict:
+        """A JSON-friendly summary."""
+        return {
+            "index": self.index, "view": self.view, "range": self.range,
+            "pixels": int(self.pixels.sum()), "gaussians": int(self.gaussians.size),
+            "expanded_gaussians": None if self.expanded is None else int(self.expanded.size),
+            "verify_views": list(self.verify_views),
+            "scores": {k: float(v) for k, v in self.scores.items()},
+            "accepted": bool(self.accepted), "reason": self.reason,
+        }
+
+
+@dataclass(eq=False)
+class FilterResult:
+    """What :func:`filter_distractors` found.
+
+    Attributes
+    ----------
+    keep : (N,) bool
+        False for the Gaussians to remove (set their opacity to zero).
+    candidates : list of Candidate
+    proposals : list of ViewProposal
+        Per input view: similarity map, support, ranges, proposal masks.
+    timings : dict of str to float
+        Seconds per stage.
+    config : FilterConfig
+    warnings : list of str
+    """
+
+    keep: np.ndarray
+    candidates: list
+    proposals: list
+    timings: dict
+    config: FilterConfig
+    warnings: list = field(default_factory=list)
+
+    @property
+    def removed(self) -> np.ndarray:
+        """(N,) bool: the Gaussians removed."""
+        return ~self.keep
+
+    def apply(self, scene: Scene) -> Scene:
+        """The filtered scene: removed Gaussians get opacity zero, nothing else changes."""
+        return scene.with_opacities(np.where(self.keep, scene.gaussians.opacities, 0.0))
+
+    def summary(self) -> dict:
+        """A JSON-friendly summary: config, counts, candidates, timings."""
+        return {
+            "config": self.config.to_dict(),
+            "gaussians": int(self.keep.size),
+            "removed": int((~self.keep).sum()),
+            "candidates": [c.record() for c in self.candidates],
+            "accepted": int(sum(c.accepted for c in self.candidates)),
+            "timings": {k: round(float(v), 4) for k, v in self.timings.items()},
+            "warnings": list(self.warnings),
+        }
+
+
+def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
+                       extractor=None, progress: Progress | None = None) -> FilterResult:
+    """Find the Gaussians of transient distractors in a feed-forward prediction.
+
+    Parameters
+    ----------
+    scene : Scene
+        Gaussians with their view association, the input cameras and the input images.
+    config : FilterConfig, optional
+        Options; ``FilterConfig()`` by default, ``FilterConfig.preset("paper")`` for the paper.
+    extractor : FeatureExtractor, optional
+        A ready extractor (otherwise built from ``config.features``).
+    progress : callable(stage, done, total), optional
+        Called as work advances.
+
+    Returns
+    -------
+    FilterResult
+        ``result.apply(scene)`` gives the filtered scene.
+    """
+    config = config or FilterConfig()
+    if scene.images is None:
+        raise ClearsplatError("the filter needs the input images", field="images")
+    scene.validate()
+    n = len(scene)
+    timings = {"proposal": 0.0, "verification": 0.0}
+    if scene.num_views < 2 or n == 0:
+        msg = ("a single input view: nothing can verify it, the scene is returned unchanged"
+               if scene.num_views < 2 else "the scene has no Gaussians")
+        warnings.warn(msg, stacklevel=2)
+        return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
+    report = progress or (lambda stage, done, total: None)
+    extractor = extractor or get_extractor(config.features, **(
+        {"checkpoint": config.checkpoint} if config.checkpoint else {}))
+    tau1 = extractor.tau1 if config.tau1 is None else config.tau1
+    tau2 = extractor.tau2 if config.tau2 is None else config.tau2
+    threads = config.num_threads
+
+    # -- proposal -----------------------------------------------------------------------------
+    t0 = time.perf_counter()
+    index = ViewIndex(scene)
+    own = [index.mask(i, n) for i in range(scene.num_views)]
+    views, full, excl = [], [], []
+    for i, cam in enumerate(scene.cameras):
+        pv = prepare(scene, cam, num_threads=threads)
+        views.append(pv)
+        full.append(pv.render())
+        excl.append(pv.render(keep=~own[i]))
+        report("render", i + 1, scene.num_views)
+    sims = extractor.similarity(np.stack(scene.images), np.stack([r.rgb for r in excl]))
+    proposals: list[ViewProposal] = []
+    for i in range(scene.num_views):
+        proposals.append(propose_view(
+            i, sims[i], excl[i].alpha, full[i].depth, excl[i].depth, eta=config.eta,
+            tau1=tau1, tau2=tau2, second_range=config.second_range,
+            single_threshold=config.single_threshold))
+    def region_to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
+        return region_gaussians(scene, view, pixels, index=index,
+                                min_weight=config.association_min_weight)
+
+    regions = [r for prop in proposals for r in prop.regions]
+    raw = [region_to_gaussians(r.view, r.pixels) for r in regions]
+    revealing = None
+    if config.refine == "depth":
+        revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
+                                        margin=config.refine_margin)
+    elif config.refine == "static-depth":
+        proposed = np.zeros(n, dtype=bool)
+        for g in raw:
+            proposed[g] = True
+        static = [views[i].render(keep=~(own[i] | proposed)).depth
+                  for i in range(scene.num_views)]
+        revealing = revealing_gaussians(scene, index, static, margin=config.refine_margin)
+
+    def to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
+        g = region_to_gaussians(view, pixels)
+        return g if revealing is None else g[revealing[g]]
+
+    if config.verify_mask == "proposals+revealing":
+        for prop in proposals:
+            prop.unreliable = pixels_of(scene, index, prop.view, revealing)
+    candidates = [Candidate(k, r.view, r.range, r.pixels,
+                            g if revealing is None else g[revealing[g]])
+                  for k, (r, g) in enumerate(zip(regions, raw))]
+    timings["proposal"] = time.perf_counter() - t0
+
+    # -- verification -------------------------------------------------------------------------
+    t0 = time.perf_counter()
+    verifier = Verifier(views, scene.images, epsilon=config.epsilon,
+                        incremental=config.incremental)
+    support_px = [p.support_pixels for p in proposals]
+
+    def expand(c: Candidate) -> np.ndarray:
+        return to_gaussians(c.view, dilate(c.pixels, config.dilation) & support_px[c.view])
+
+    if not config.verify:
+        for c in candidates:
+            c.expanded = expand(c)
+            c.accepted, c.reason = True, "accepted without verification"
+    else:
+        _individual_tests(scene, candidates, proposals, verifier, full, excl, own, index,
+                          config, report)
+        passed = [c for c in candidates if c.reason == "passed individual test"]
+        for c in passed:
+            c.expanded = expand(c)
+        first = [c for c in passed if c.range == 1]
+        second = [c for c in passed if c.range == 2]
+        for c in first:
+            c.accepted, c.reason = True, "accepted (first range)"
+        if second:
+            _second_range_tests(scene, first, second, proposals, verifier, excl, own, config,
+                                report)
+    keep = np.ones(n, dtype=bool)
+    for c in candidates:
+        if c.accepted and c.expanded is not None:
+            keep[c.expanded] = False
+    timings["verification"] = time.perf_counter() - t0
+    timings["total"] = timings["proposal"] + timings["verification"]
+    return FilterResult(keep, candidates, proposals, timings, config)
+
+
+def _exclusion_masks(proposals, rng: int) -> list[np.ndarray]:
+    """Q_j per view: M_j^1 for first-range candidates, M_j^1 | M_j^2 for second-range ones,
+    plus the view's unreliable pixels where ``verify_mask`` asks for them."""
+    out = []
+    for p in proposals:
+        q = p.mask1 if rng == 1 else (p.mask1 | p.mask2)
+        out.append(q if p.unreliable is None else (q | p.unreliable))
+    return out
+
+
+def _individual_tests(scene, candidates, proposals, verifier, full, excl, own, index, config,
+                      report):
+    """Score every candidate on its verification views; mark those with a positive score."""
+    views_of = {i: verification_views(scene, i, config.num_verify_views, index=index)
+                for i in range(scene.num_views)}
+    n = len(scene)
+    all_keep = np.ones(n, dtype=bool)
+    q = {1: _exclusion_masks(proposals, 1), 2: _exclusion_masks(proposals, 2)}
+    totals = {c.index: Partial() for c in candidates}
+    for c in candidates:
+        c.verify_views = views_of[c.view]
+    # Batch per verifying view: every candidate that view j verifies, in one native call.
+    for j in range(scene.num_views):
+        todo = [c for c in candidates if j in c.verify_views and c.gaussians.size]
+        if not todo:
+            continue
+        if config.verify_base == "full":
+            base_keep, base = all_keep, full[j]
+        else:
+            base_keep, base = ~own[j], excl[j]
+        for rng in (1, 2):
+            batch = [c for c in todo if c.range == rng]
+            parts = verifier.score_view(j, base_keep, base, [c.gaussians for c in batch],
+                                        q[rng][j])
+            for c, p in zip(batch, parts):
+                totals[c.index].add(p)
+        report("individual", j + 1, scene.num_views)
+    for c in candidates:
+        s = totals[c.index].score
+        c.scores["individual"] = s
+        if c.gaussians.size == 0:
+            c.reason = "no Gaussians in region"
+        elif s > config.min_score:
+            c.reason = "passed individual test"
+        else:
+            c.reason = "rejected by individual test"
+
+
+def _second_range_tests(scene, first, second, proposals, verifier, excl, own, config, report):
+    """The additional test of each second-range candidate, then their joint test."""
+    q = _exclusion_masks(proposals, 2)
+    totals = {c.index: Partial() for c in second}
+    for j in range(scene.num_views):
+        parts = verifier.score_view(j, ~own[j], excl[j], [c.expanded for c in second], q[j])
+        for c, p in zip(second, parts):
+            totals[c.index].add(p)
+        report("additional", j + 1, scene.num_views)
+    survivors = []
+    for c in second:
+        s = totals[c.index].score
+        c.scores["additional"] = s
+        if s > config.min_score:
+            survivors.append(c)
+        else:
+            c.reason = "rejected by additional test"
+    if not survivors:
+        return
+    n = len(scene)
+    removed_first = np.zeros(n, dtype=bool)
+    for c in first:
+        removed_first[c.expanded] = True
+    joint = np.unique(np.concatenate([c.expanded for c in survivors]))
+    total = Partial()
+    for j, pv in enumerate(verifier.views):
+        base_keep = ~removed_first if config.joint_base == "full" else ~(removed_first | own[j])
+        base = pv.render(keep=base_keep)
+        (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
+        total.add(p)
+        report("joint", j + 1, scene.num_views)
+    ok = total.score > config.min_score
+    for c in survivors:
+        c.scores["joint"] = total.score
+        c.accepted = ok
+        c.reason = "accepted (second range, joint test)" if ok else "rejected by joint test"

@@ -1,0 +1,586 @@
+"""CPU Gaussian rasterizer: full renders, subsets, and exact incremental re-renders.
+
+The forward pass of the original 3DGS code (EWA splatting, 16x16 tiles, front-to-back alpha
+compositing); every convention is on one page, ``docs/conventions.md`` ("Rasterization").
+
+- :func:`render` / :func:`render_batch`: images, alpha and expected depth of a camera.
+- :func:`contributions`: the blending weight of every Gaussian the compositing adds at the
+  pixels of a mask (the rasterizer association).
+- :func:`prepare` -> :class:`PreparedView`: projection, binning and sorting done once, then
+  any subset rendered (``keep``) and, exactly, only the tiles a removal can change
+  (:meth:`PreparedView.rerender`, :meth:`PreparedView.rerender_tiles`).
+
+A subset never changes the order of the remaining Gaussians (ties in depth are broken by
+Gaussian index), so rendering with ``keep`` equals rendering the subset scene bit for bit.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from . import _render
+from .cameras import Camera
+from .errors import ClearsplatError
+from .scene import Gaussians, Scene
+
+__all__ = ["RenderResult", "Contributions", "TilePatch", "PreparedView", "render",
+           "render_batch", "contributions", "prepare"]
+
+TILE = _render.TILE
+_MAX_SIZE = 32767  # the pixel boxes are int16
+
+
+class RenderResult(NamedTuple):
+    """One rendered view.
+
+    Attributes
+    ----------
+    rgb : (H, W, 3) float32
+        ``sum c_i a_i T_i + T_final * background``.
+    alpha : (H, W) float32
+        ``1 - T_final``.
+    depth : (H, W) float32
+        Expected camera z, ``sum z_i a_i T_i / alpha``; 0 where alpha is 0.
+    """
+
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+
+
+class Contributions(NamedTuple):
+    """Blending weights the compositing added, ordered by pixel, then front to back.
+
+    Attributes
+    ----------
+    pixel : (M,) int64
+        Flat pixel index ``row * W + col``.
+    gaussian : (M,) int64
+        Index of the Gaussian in the scene.
+    weight : (M,) float32
+        ``alpha * T`` of that Gaussian at that pixel.
+    """
+
+    pixel: np.ndarray
+    gaussian: np.ndarray
+    weight: np.ndarray
+
+
+class TilePatch(NamedTuple):
+    """Re-composited tiles (pixels outside the image in border tiles are 0).
+
+    Attributes
+    ----------
+    tiles : (T,) int32
+        Tile ids ``tile_row * grid[1] + tile_col``, ascending.
+    rgb : (T, 16, 16, 3) float32
+    alpha : (T, 16, 16) float32
+    depth : (T, 16, 16) float32
+    """
+
+    tiles: np.ndarray
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+
+
+# -- input checks ----------------------------------------------------------------------------
+def _gaussians(scene) -> Gaussians:
+    if isinstance(scene, Scene):
+        return scene.gaussians
+    if isinstance(scene, Gaussians):
+        return scene
+    raise ClearsplatError(f"expected a Scene or Gaussians, got {type(scene).__name__}",
+                          field="scene")
+
+
+def _check_gaussians(g: Gaussians) -> None:
+    """Shapes only (cheap); non-finite Gaussians are culled by the rasterizer."""
+    n = len(g)
+    for name, shape in (("means", (n, 3)), ("scales", (n, 3)), ("quats", (n, 4)),
+                        ("opacities", (n,))):
+        arr = np.asarray(getattr(g, name))
+        if arr.shape != shape:
+            raise ClearsplatError(f"expected shape {shape}, got {arr.shape}", field=name)
+    sh = np.asarray(g.sh)
+    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
+        raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, got {sh.shape}",
+                              field="sh")
+    if n >= 2**31 - 1:
+        raise ClearsplatError(f"at most 2**31 - 2 Gaussians, got {n}", field="means")
+
+
+def _check_camera(camera, field: str = "camera") -> Camera:
+    if not isinstance(camera, Camera):
+        raise ClearsplatError(f"expected a Camera, got {type(camera).__name__}", field=field)
+    if camera.width > _MAX_SIZE or camera.height > _MAX_SIZE:
+        raise ClearsplatError(f"image size {camera.width}x{camera.height} above {_MAX_SIZE}",
+                              field=field)
+    return camera
+
+
+def _check_keep(keep, n: int, field: str = "keep") -> np.ndarray | None:
+    if keep is None:
+        return None
+    keep = np.asarray(keep)
+    if keep.dtype != np.bool_ or keep.shape != (n,):
+        raise ClearsplatError(f"expected a ({n},) bool array, got {keep.dtype} {keep.shape}",
+                              field=field)
+    return np.ascontiguousarray(keep)
+
+
+def _check_threads(num_threads) -> int:
+    if num_threads is None:
+        return _render.max_threads()
+    if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) \
+            or num_threads < 1:
+        raise ClearsplatError(f"expected a positive int, got {num_threads!r}", field="num_threads")
+    return int(num_threads)
+
+
+def _check_near(near) -> float:
+    near = float(near)
+    if not (np.isfinite(near) and near > 0):
+        raise ClearsplatError(f"expected a positive finite near plane, got {near}", field="near")
+    return near
+
+
+def _check_background(background) -> np.ndarray:
+    bg = np.asarray(background, dtype=np.float32)
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ClearsplatError(f"expected 3 finite values, got {background!r}", field="background")
+    return bg
+
+
+def _check_indices(gaussians, n: int, field: str) -> np.ndarray:
+    """Gaussian indices from an int index array or an (n,) bool mask, as int64."""
+    a = np.asarray(gaussians)
+    if a.dtype == np.bool_:
+        if a.shape != (n,):
+            raise ClearsplatError(f"expected a ({n},) bool mask, got shape {a.shape}", field=field)
+        return np.flatnonzero(a)
+    if a.size == 0:
+        return np.empty(0, dtype=np.int64)
+    if not np.issubdtype(a.dtype, np.integer) or a.ndim != 1:
+        raise ClearsplatError(f"expected a 1-D int index array or bool mask, got {a.dtype} "
+                              f"{a.shape}", field=field)
+    if a.min() < 0 or a.max() >= n:
+        raise ClearsplatError(f"Gaussian index out of range 0..{n - 1}", field=field)
+    return a.astype(np.int64, copy=False)
+
+
+# -- prepared view ---------------------------------------------------------------------------
+class PreparedView:
+    """One camera with projection, tile binning and depth sort done (visible Gaussians only).
+
+    Made by :func:`prepare`. Stores the visible Gaussians compactly (about 60 bytes each plus
+    4 bytes per (tile, Gaussian) pair), so many views of millions of Gaussians fit in memory.
+
+    Attributes
+    ----------
+    camera : Camera
+    tile_size : int
+        16.
+    grid : (int, int)
+        Rows and columns of tiles. Tile id ``t`` covers rows ``16 * (t // cols)`` ... and
+        columns ``16 * (t % cols)`` ... .
+    num_visible : int
+        Gaussians that survive culling in this view.
+    num_gaussians : int
+        Gaussians in the scene (the length ``keep`` masks must have).
+    memory_bytes : int
+        Bytes held by the arrays of this view.
+    """
+
+    tile_size = TILE
+
+    def __init__(self, *, camera: Camera, num_gaussians: int, splats, rects, index, offsets,
+                 lists, num_threads: int):
+        self.camera = camera
+        self.num_gaussians = int(num_gaussians)
+        self._splats, self._rects, self._index = splats, rects, index
+        self._offsets, self._lists = offsets, lists
+        self._num_threads = num_threads
+        self._visible_id = None  # (N,) int32 Gaussian -> visible id or -1, built on demand
+
+    # -- properties ------------------------------------------------------------------------
+    @property
+    def grid(self) -> tuple[int, int]:
+        return (-(-self.camera.height // TILE), -(-self.camera.width // TILE))
+
+    @property
+    def num_tiles(self) -> int:
+        rows, cols = self.grid
+        return rows * cols
+
+    @property
+    def num_visible(self) -> int:
+        return int(self._index.shape[0])
+
+    @property
+    def visible(self) -> np.ndarray:
+        """(V,) int64 indices of the visible Gaussians, front to back."""
+        return self._index.astype(np.int64)
+
+    @property
+    def memory_bytes(self) -> int:
+        arrays = [self._splats, self._rects, self._index, self._offsets, self._lists]
+        if self._visible_id is not None:
+            arrays.append(self._visible_id)
+        return int(sum(a.nbytes for a in arrays))
+
+    def __repr__(self) -> str:
+        return (f"PreparedView({self.camera.width}x{self.camera.height}, "
+                f"{self.num_visible} of {self.num_gaussians} Gaussians visible, "
+                f"{self.memory_bytes / 2**20:.1f} MiB)")
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
+        """(V,) bool keep over the visible Gaussians, or None."""
+        keep = _check_keep(keep, self.num_gaussians, field)
+        return None if keep is None else keep[self._index]
+
+    def _ids(self, gaussians, field: str) -> np.ndarray:
+        """Sorted unique visible ids (int32) of the given Gaussians (invisible ones dropped)."""
+        idx = _check_indices(gaussians, self.num_gaussians, field)
+        if self._visible_id is None:
+            vid = np.full(self.num_gaussians, -1, dtype=np.int32)
+            vid[self._index] = np.arange(self.num_visible, dtype=np.int32)
+            self._visible_id = vid
+        ids = self._visible_id[idx]
+        return np.unique(ids[ids >= 0]).astype(np.int32)
+
+    def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
+        t = np.asarray(tiles)
+        if t.size == 0:
+            return np.empty(0, dtype=np.int32)
+        if not np.issubdtype(t.dtype, np.integer) or t.ndim != 1:
+            raise ClearsplatError(f"expected a 1-D int array of tile ids, got {t.dtype} {t.shape}",
+                                  field=field)
+        if t.min() < 0 or t.max() >= self.num_tiles:
+            raise ClearsplatError(f"tile id out of range 0..{self.num_tiles - 1}", field=field)
+        return np.unique(t).astype(np.int32)
+
+    def _check_result(self, base, field: str = "base") -> RenderResult:
+        h, w = self.camera.height, self.camera.width
+        if not isinstance(base, RenderResult) or np.shape(base.rgb) != (h, w, 3) \
+                or np.shape(base.alpha) != (h, w) or np.shape(base.depth) != (h, w):
+            raise ClearsplatError(f"expected a RenderResult of a {w}x{h} view", field=field)
+        return base
+
+    def _tile_pixels(self, tiles: np.ndarray):
+        """Row and column indices (T, 16, 1), (T, 1, 16) clipped into the image, and validity."""
+        cols = self.grid[1]
+        rows = (tiles // cols)[:, None] * TILE + np.arange(TILE)
+        cols_ = (tiles % cols)[:, None] * TILE + np.arange(TILE)
+        valid = (rows < self.camera.height)[:, :, None] & (cols_ < self.camera.width)[:, None, :]
+        rows = np.minimum(rows, self.camera.height - 1)[:, :, None]
+        cols_ = np.minimum(cols_, self.camera.width - 1)[:, None, :]
+        return rows, cols_, valid
+
+    # -- rendering -------------------------------------------------------------------------
+    def render(self, *, keep=None, background=(0.0, 0.0, 0.0)) -> RenderResult:
+        """Render the view, optionally only the Gaussians where ``keep`` is True.
+
+        Parameters
+        ----------
+        keep : (N,) bool, optional
+            Gaussians to render (all by default). Equal, bit for bit, to rendering the subset.
+        background : 3 floats
+            Colour behind the Gaussians.
+
+        Returns
+        -------
+        RenderResult
+        """
+        keep_v = self._keep(keep)
+        bg = _check_background(background)
+        h, w = self.camera.height, self.camera.width
+        out = RenderResult(np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
+                           np.empty((h, w), np.float32))
+        _render.composite(self._splats, self._offsets, self._lists, keep_v,
+                          np.arange(self.num_tiles, dtype=np.int32), w, h, bg, *out,
+                          self._num_threads)
+        return out
+
+    def tiles_touched(self, gaussians) -> np.ndarray:
+        """Tiles whose lists hold any of ``gaussians``: the only tiles their removal can change.
+
+        Parameters
+        ----------
+        gaussians : int array of Gaussian indices, or (N,) bool mask
+            Gaussians not visible in this view touch nothing.
+
+        Returns
+        -------
+        (T,) int32 sorted unique tile ids.
+        """
+        ids = self._ids(gaussians, "gaussians")
+        _, tiles = _render.tiles_touched(self._rects, np.array([0, ids.size], np.int64), ids,
+                                         self.grid[1], self.grid[0], self._num_threads)
+        return tiles
+
+    def rerender(self, base: RenderResult, *, keep, tiles,
+                 background=(0.0, 0.0, 0.0)) -> RenderResult:
+        """A copy of ``base`` with only ``tiles`` re-composited using ``keep``.
+
+        Equals ``render(keep=keep)`` exactly when ``tiles`` covers
+        :meth:`tiles_touched` of every Gaussian whose keep differs from ``base``'s.
+
+        Parameters
+        ----------
+        base : RenderResult
+            A render of this view (with the same ``background``).
+        keep : (N,) bool or None
+        tiles : int array of tile ids
+        background : 3 floats
+
+        Returns
+        -------
+        RenderResult
+        """
+        base = self._check_result(base)
+        keep_v = self._keep(keep)
+        tiles = self._check_tiles(tiles)
+        bg = _check_background(background)
+        out = RenderResult(*(np.array(a, dtype=np.float32, order="C", copy=True) for a in base))
+        _render.composite(self._splats, self._offsets, self._lists, keep_v, tiles,
+                          self.camera.width, self.camera.height, bg, *out, self._num_threads)
+        return out
+
+    def rerender_tiles(self, *, keep, removals: Sequence, tiles_list: Sequence | None = None,
+                       background=(0.0, 0.0, 0.0)) -> list[TilePatch]:
+        """Batched exact incremental renders, one per removal, of only the tiles it changes.
+
+        For removal ``r`` (Gaussian indices dropped on top of ``~keep``), the tiles
+        :meth:`tiles_touched` ``(r)`` (or ``tiles_list[r]``) are re-composited. All
+        (removal, tile) pairs run in parallel.
+
+        Parameters
+        ----------
+        keep : (N,) bool or None
+            The base subset (None: all Gaussians).
+        removals : sequence of int arrays (or (N,) bool masks)
+        tiles_list : sequence of int arrays, optional
+            Tiles to re-composite per removal instead of the touched ones.
+        background : 3 floats
+
+        Returns
+        -------
+        list of TilePatch, one per removal. Use :meth:`gather` for the same tiles of a full
+        image and :meth:`scatter` to paste a patch into a render.
+        """
+        keep_v = self._keep(keep)
+        bg = _check_background(background)
+        removals = list(removals)
+        ids = [self._ids(r, f"removals[{i}]") for i, r in enumerate(removals)]
+        rem_offsets = np.zeros(len(ids) + 1, dtype=np.int64)
+        rem_offsets[1:] = np.cumsum([a.size for a in ids])
+        rem_ids = np.concatenate(ids) if ids else np.empty(0, np.int32)
+        if tiles_list is None:
+            task_offsets, task_tiles = _render.tiles_touched(
+                self._rects, rem_offsets, rem_ids, self.grid[1], self.grid[0], self._num_threads)
+        else:
+            tiles_list = list(tiles_list)
+            if len(tiles_list) != len(removals):
+                raise ClearsplatError(f"{len(tiles_list)} tile lists for {len(removals)} removals",
+                                      field="tiles_list")
+            sets = [self._check_tiles(t, f"tiles_list[{i}]") for i, t in enumerate(tiles_list)]
+            task_offsets = np.zeros(len(sets) + 1, dtype=np.int64)
+            task_offsets[1:] = np.cumsum([s.size for s in sets])
+            task_tiles = np.concatenate(sets) if sets else np.empty(0, np.int32)
+        rgb, alpha, depth = _render.composite_patches(
+            self._splats, self._offsets, self._lists, self._rects, keep_v, rem_offsets, rem_ids,
+            task_offsets, task_tiles, self.camera.width, self.camera.height, bg,
+            self._num_threads)
+        return [TilePatch(task_tiles[a:b], rgb[a:b], alpha[a:b], depth[a:b])
+                for a, b in zip(task_offsets[:-1], task_offsets[1:])]
+
+    def gather(self, image, tiles) -> np.ndarray:
+        """The pixels of ``tiles`` in a full image, shaped like a patch.
+
+        Parameters
+        ----------
+        image : (H, W, ...) array
+        tiles : (T,) int tile ids
+
+        Returns
+        -------
+        (T, 16, 16, ...) array, 0 outside the image.
+        """
+        image = np.asarray(image)
+        if image.shape[:2] != (self.camera.height, self.camera.width):
+            raise ClearsplatError(f"expected an image of {self.camera.height}x{self.camera.width}, "
+                                  f"got shape {image.shape}", field="image")
+        tiles = np.asarray(tiles)
+        if tiles.size and (tiles.min() < 0 or tiles.max() >= self.num_tiles):
+            raise ClearsplatError(f"tile id out of range 0..{self.num_tiles - 1}", field="tiles")
+        rows, cols, valid = self._tile_pixels(tiles.astype(np.int64).reshape(-1))
+        out = image[rows, cols]
+        out[~valid] = 0
+        return out
+
+    def scatter(self, patch: TilePatch, base: RenderResult) -> RenderResult:
+        """A copy of ``base`` with the tiles of ``patch`` pasted in."""
+        base = self._check_result(base)
+        rows, cols, valid = self._tile_pixels(np.asarray(patch.tiles, dtype=np.int64))
+        out = RenderResult(*(np.array(a, copy=True) for a in base))
+        r = np.broadcast_to(rows, valid.shape)[valid]
+        c = np.broadcast_to(cols, valid.shape)[valid]
+        out.rgb[r, c] = patch.rgb[valid]
+        out.alpha[r, c] = patch.alpha[valid]
+        out.depth[r, c] = patch.depth[valid]
+        return out
+
+    def contributions(self, mask, *, keep=None) -> Contributions:
+        """Every ``(pixel, gaussian, alpha * T)`` the compositing adds where ``mask`` is True.
+
+        Parameters
+        ----------
+        mask : (H, W) bool
+        keep : (N,) bool, optional
+
+        Returns
+        -------
+        Contributions, ordered by pixel, then front to back.
+        """
+        h, w = self.camera.height, self.camera.width
+        mask = np.asarray(mask)
+        if mask.dtype != np.bool_ or mask.shape != (h, w):
+            raise ClearsplatError(f"expected a ({h}, {w}) bool mask, got {mask.dtype} "
+                                  f"{mask.shape}", field="mask")
+        pixel, ids, weight = _render.contributions(self._splats, self._offsets, self._lists,
+                                                   self._keep(keep), mask, w, h,
+                                                   self._num_threads)
+        return Contributions(pixel, self._index[ids].astype(np.int64), weight)
+
+
+# -- public functions ------------------------------------------------------------------------
+def _prepare(g: Gaussians, camera: Camera, keep, near: float, num_threads: int) -> PreparedView:
+    splats, rects, index = _render.project(
+        g.means, g.scales, g.quats, g.opacities, g.sh, keep, camera.world_to_camera, camera.K,
+        camera.position, camera.width, camera.height, near, num_threads)
+    rows, cols = -(-camera.height // TILE), -(-camera.width // TILE)
+    offsets, lists = _render.bin_tiles(rects, cols, rows, num_threads)
+    return PreparedView(camera=camera, num_gaussians=len(g), splats=splats, rects=rects,
+                        index=index, offsets=offsets, lists=lists, num_threads=num_threads)
+
+
+def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | None = None
+            ) -> PreparedView:
+    """Project, bin and depth-sort a scene for one camera, for repeated (subset) renders.
+
+    Parameters
+    ----------
+    scene : Scene or Gaussians
+    camera : Camera
+    near : float
+        Gaussians with camera z below this are culled.
+    num_threads : int, optional
+        Threads for this view's kernels (all cores by default); results do not depend on it.
+
+    Returns
+    -------
+    PreparedView
+    """
+    g = _gaussians(scene)
+    _check_gaussians(g)
+    return _prepare(g, _check_camera(camera), None, _check_near(near), _check_threads(num_threads))
+
+
+def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near: float = 0.01,
+           num_threads: int | None = None) -> RenderResult:
+    """Render a scene from a camera.
+
+    Parameters
+    ----------
+    scene : Scene or Gaussians
+    camera : Camera
+    keep : (N,) bool, optional
+        Render only these Gaussians (no copy of the scene); equal to rendering the subset.
+    background : 3 floats
+        Colour behind the Gaussians, RGB.
+    near : float
+        Near plane: Gaussians with camera z below it are culled.
+    num_threads : int, optional
+        Threads (all cores by default); results do not depend on it.
+
+    Returns
+    -------
+    RenderResult
+        ``rgb`` (H, W, 3), ``alpha`` (H, W), ``depth`` (H, W), float32.
+
+    Examples
+    --------
+    >>> out = render(scene, scene.cameras[0])  # doctest: +SKIP
+    >>> out.rgb.shape  # doctest: +SKIP
+    (H, W, 3)
+    """
+    g = _gaussians(scene)
+    _check_gaussians(g)
+    camera = _check_camera(camera)
+    keep = _check_keep(keep, len(g))
+    bg = _check_background(background)
+    view = _prepare(g, camera, keep, _check_near(near), _check_threads(num_threads))
+    return view.render(background=bg)
+
+
+def render_batch(scene, cameras: Sequence[Camera], keeps: Sequence | None = None, *,
+                 background=(0.0, 0.0, 0.0), near: float = 0.01,
+                 num_threads: int | None = None) -> list[RenderResult]:
+    """Render many (camera, keep) pairs; equal to calling :func:`render` for each.
+
+    Parameters
+    ----------
+    scene : Scene or Gaussians
+    cameras : sequence of Camera
+    keeps : sequence of ((N,) bool or None), optional
+        One per camera.
+    background, near, num_threads
+        As in :func:`render`.
+
+    Returns
+    -------
+    list of RenderResult, one per camera.
+    """
+    g = _gaussians(scene)
+    _check_gaussians(g)
+    cameras = [_check_camera(c, f"cameras[{i}]") for i, c in enumerate(cameras)]
+    if keeps is None:
+        keeps = [None] * len(cameras)
+    keeps = list(keeps)
+    if len(keeps) != len(cameras):
+        raise ClearsplatError(f"{len(keeps)} keep masks for {len(cameras)} cameras", field="keeps")
+    keeps = [_check_keep(k, len(g), f"keeps[{i}]") for i, k in enumerate(keeps)]
+    bg = _check_background(background)
+    near, threads = _check_near(near), _check_threads(num_threads)
+    return [_prepare(g, c, k, near, threads).render(background=bg) for c, k in zip(cameras, keeps)]
+
+
+def contributions(scene, camera: Camera, mask, *, keep=None, near: float = 0.01,
+                  num_threads: int | None = None) -> Contributions:
+    """Every ``(pixel, gaussian, alpha * T)`` the compositing adds at the pixels of ``mask``.
+
+    Parameters
+    ----------
+    scene : Scene or Gaussians
+    camera : Camera
+    mask : (H, W) bool
+    keep : (N,) bool, optional
+    near : float
+    num_threads : int, optional
+
+    Returns
+    -------
+    Contributions
+        ``pixel`` (M,) int64, ``gaussian`` (M,) int64, ``weight`` (M,) float32, ordered by
+        pixel, then front to back.
+    """
+    g = _gaussians(scene)
+    _check_gaussians(g)
+    camera = _check_camera(camera)
+    keep = _check_keep(keep, len(g))
+    view = _prepare(g, camera, keep, _check_near(near), _check_threads(num_threads))
+    return view.contributions(mask)

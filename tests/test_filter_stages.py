@@ -1,0 +1,142 @@
+"""Each stage of the filter on small hand-built inputs (no rendering needed)."""
+
+import numpy as np
+import pytest
+
+from clearsplat.filter import FilterConfig
+from clearsplat.filter.association import dilate
+from clearsplat.filter.proposal import (cell_index_map, connected_regions, patch_means,
+                                        propose_view, proposal_ranges, support_condition)
+from clearsplat.filter.verify import Partial, change_weighted_terms, pooled_score
+from clearsplat import ClearsplatError
+
+
+def test_cell_index_map_covers_every_cell_evenly():
+    cells = cell_index_map((4, 7), 64, 112)
+    assert cells.shape == (64, 112)
+    counts = np.bincount(cells.ravel())
+    assert counts.shape == (28,) and (counts == 256).all()
+    assert cells[0, 0] == 0 and cells[63, 111] == 27 and cells[16, 0] == 7
+
+
+def test_patch_means_against_loop():
+    rng = np.random.default_rng(0)
+    vals = rng.random((32, 48))
+    valid = rng.random((32, 48)) > 0.3
+    cells = cell_index_map((2, 3), 32, 48)
+    mean, count = patch_means(vals, cells, 6, valid)
+    for c in range(6):
+        sel = (cells == c) & valid
+        assert count[c] == sel.sum()
+        assert mean[c] == pytest.approx(vals[sel].mean())
+
+
+def test_support_needs_opacity_and_a_farther_surface():
+    h, w = 32, 32
+    alpha = np.ones((h, w), np.float32)
+    z_full = np.full((h, w), 2.0, np.float32)
+    z_excl = np.full((h, w), 5.0, np.float32)
+    alpha[:16, :16] = 0.3            # cell (0,0): too transparent after exclusion
+    z_excl[:16, 16:] = 1.0           # cell (0,1): exclusion reveals a nearer surface
+    z_full[16:, :16] = 0.0           # cell (1,0): no valid depth before exclusion
+    g = support_condition(alpha, z_full, z_excl, (2, 2), eta=0.5)
+    assert g.tolist() == [[False, False], [False, True]]
+
+
+def test_support_averages_over_pixels_valid_in_both():
+    alpha = np.ones((16, 16), np.float32)
+    z_full = np.full((16, 16), 3.0, np.float32)
+    z_excl = np.full((16, 16), 2.0, np.float32)
+    # Only the pixels valid in both count: there the full render is nearer.
+    z_full[:8] = 1.0
+    z_excl[8:] = 0.0
+    assert support_condition(alpha, z_full, z_excl, (1, 1), eta=0.5)[0, 0]
+
+
+def test_ranges_are_split_at_tau1_and_tau2():
+    s = np.array([[0.1, 0.5, 0.69, 0.7, 0.9]], np.float32)
+    sup = np.ones_like(s, bool)
+    assert proposal_ranges(s, sup, tau1=0.5, tau2=0.7).tolist() == [[1, 2, 2, 0, 0]]
+    assert proposal_ranges(s, sup, tau1=0.5, tau2=0.7, second_range=False).tolist() == \
+        [[1, 0, 0, 0, 0]]
+    assert proposal_ranges(s, sup, tau1=0.5, tau2=0.7, single_threshold=True).tolist() == \
+        [[1, 1, 1, 0, 0]]
+    sup[0, 0] = False
+    assert proposal_ranges(s, sup, tau1=0.5, tau2=0.7)[0, 0] == 0
+
+
+def test_components_are_eight_connected_and_ranges_never_merge():
+    r = np.array([[1, 0, 0, 2],
+                  [0, 1, 0, 2],
+                  [0, 0, 0, 0],
+                  [1, 1, 2, 0]], np.int8)
+    ones = connected_regions(r, 1)
+    twos = connected_regions(r, 2)
+    assert len(ones) == 2           # the diagonal pair joins (8-connectivity)
+    assert ones[0][0, 0] and ones[0][1, 1]
+    assert len(twos) == 2           # (3,2) touches range-1 cells but stays apart
+    assert sum(m.sum() for m in ones) == 4 and sum(m.sum() for m in twos) == 3
+
+
+def test_propose_view_upsamples_components_to_pixels():
+    sim = np.ones((2, 3), np.float32)
+    sim[0, 1] = 0.2
+    sim[1, 2] = 0.6
+    alpha = np.ones((32, 48), np.float32)
+    zf = np.ones((32, 48), np.float32)
+    ze = np.full((32, 48), 2.0, np.float32)
+    p = propose_view(0, sim, alpha, zf, ze, eta=0.5, tau1=0.5, tau2=0.7)
+    assert [r.range for r in p.regions] == [1, 2]
+    assert p.mask1.sum() == 256 and p.mask1[:16, 16:32].all()
+    assert p.mask2.sum() == 256 and p.mask2[16:, 32:].all()
+    assert not (p.mask1 & p.mask2).any()
+
+
+def test_score_closed_form():
+    # Two pixels: removing the candidate fixes one (error 0.6 -> 0) and harms another.
+    image = np.array([[0.0, 0.0, 0.0], [0.5, 0.5, 0.5]], np.float32)
+    base = np.array([[0.2, 0.2, 0.2], [0.5, 0.5, 0.5]], np.float32)
+    after = np.array([[0.0, 0.0, 0.0], [0.6, 0.5, 0.5]], np.float32)
+    p = change_weighted_terms(base, after, image, np.zeros(2, bool), 0.002)
+    # w = [0.6, 0.1]; delta = [0.6, -0.1]
+    assert p.num == pytest.approx(0.6 * 0.6 - 0.1 * 0.1)
+    assert p.den == pytest.approx(0.7)
+    assert p.score == pytest.approx((0.36 - 0.01) / 0.7)
+    # Excluding the improved pixel leaves only harm: negative score.
+    q = change_weighted_terms(base, after, image, np.array([True, False]), 0.002)
+    assert q.score == pytest.approx(-0.1)
+
+
+def test_score_ignores_changes_below_epsilon_and_is_zero_without_weight():
+    image = np.zeros((3, 3), np.float32)
+    base = np.full((3, 3), 0.1, np.float32)
+    after = base + np.float32(0.0005)   # w = 0.0015 <= epsilon everywhere
+    p = change_weighted_terms(base, after, image, np.zeros(3, bool), 0.002)
+    assert p.den == 0 and p.score == 0.0
+    assert pooled_score([Partial(), Partial()]) == 0.0
+    assert pooled_score([Partial(1.0, 2.0), Partial(-3.0, 2.0)]) == pytest.approx(-0.5)
+
+
+def test_dilate_is_a_disk():
+    m = np.zeros((41, 41), bool)
+    m[20, 20] = True
+    d = dilate(m, 9)
+    yy, xx = np.mgrid[:41, :41]
+    assert np.array_equal(d, (yy - 20) ** 2 + (xx - 20) ** 2 <= 81)
+    assert np.array_equal(dilate(m, 0), m)
+
+
+def test_config_presets_and_validation():
+    paper = FilterConfig.preset("paper")
+    assert (paper.tau1, paper.tau2) == (None, None) and paper.features == "dinov3"
+    assert paper.verify_base == "full" and paper.num_verify_views == 3
+    assert paper.eta == 0.5 and paper.epsilon == 0.002 and paper.dilation == 9
+    assert FilterConfig.preset("paper", features="local").features == "local"
+    with pytest.raises(ClearsplatError, match="preset"):
+        FilterConfig.preset("nope")
+    with pytest.raises(ClearsplatError, match="verify_base"):
+        FilterConfig(verify_base="sometimes")
+    with pytest.raises(ClearsplatError, match="unknown option"):
+        FilterConfig().replace(colour="red")
+    with pytest.raises(ClearsplatError, match="tau1"):
+        FilterConfig(tau1=0.8, tau2=0.7)

@@ -1,0 +1,367 @@
+"""The native rasterizer against the NumPy reference, closed forms, and its exactness contracts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import reference_rasterizer as ref
+from clearsplat import Camera, ClearsplatError, Gaussians, Scene
+from clearsplat.render import (Contributions, PreparedView, RenderResult, TilePatch,
+                               contributions, prepare, render, render_batch)
+from clearsplat.scene import rgb_to_sh_dc
+
+# Native float32 vs float64 reference.
+ATOL = 1e-4
+
+
+def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
+    """OpenCV camera-to-world looking from ``eye`` at ``target`` (y down)."""
+    eye = np.asarray(eye, float)
+    f = np.asarray(target, float) - eye
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, np.cross(f, r), f, eye
+    return c2w
+
+
+def make_camera(width, height, *, eye=(0.3, 0.2, -3.0), target=(0.0, 0.0, 0.0), f=(50.0, 55.0),
+                c=None) -> Camera:
+    cx, cy = c if c is not None else (width / 2 + 0.3, height / 2 - 0.2)
+    return Camera(K=[[f[0], 0, cx], [0, f[1], cy], [0, 0, 1]],
+                  camera_to_world=look_at(eye, target), width=width, height=height)
+
+
+def random_gaussians(rng, n, *, k=16, spread=1.2) -> Gaussians:
+    """Anisotropic Gaussians around the origin; with the default camera some are behind it
+    (z < -3) and many beside the frustum."""
+    means = rng.normal(size=(n, 3)) * spread
+    means[: n // 10, 2] = rng.uniform(-6.0, -3.05, n // 10)  # behind the camera at z = -3
+    opac = rng.uniform(0, 1, n)
+    opac[:3] = (0.0, 1.0, 0.999)
+    return Gaussians(means=means, scales=np.exp(rng.uniform(np.log(0.01), np.log(0.4), (n, 3))),
+                     quats=rng.normal(size=(n, 4)), opacities=opac,
+                     sh=rng.normal(size=(n, k, 3)) * 0.4)
+
+
+def lone_gaussian(mean, scale, opacity, colour=(1.0, 0.5, 0.25)) -> Gaussians:
+    return Gaussians(means=[mean], scales=[[scale] * 3], quats=[[1.0, 0, 0, 0]],
+                     opacities=[opacity], sh=rgb_to_sh_dc(np.array([[colour]])))
+
+
+def assert_matches_reference(g, cam, *, keep=None, background=(0.0, 0.0, 0.0)):
+    out = render(g, cam, keep=keep, background=background)
+    rgb, alpha, depth, _ = ref.render(g, cam, keep=keep, background=background)
+    assert out.rgb.dtype == np.float32 and out.rgb.shape == (cam.height, cam.width, 3)
+    assert out.alpha.shape == out.depth.shape == (cam.height, cam.width)
+    np.testing.assert_allclose(out.rgb, rgb, atol=ATOL, rtol=0)
+    np.testing.assert_allclose(out.alpha, alpha, atol=ATOL, rtol=0)
+    # depth = D / alpha amplifies float32 rounding where alpha is tiny: compare D itself.
+    np.testing.assert_allclose(out.depth * out.alpha, depth * alpha, atol=ATOL, rtol=0)
+    np.testing.assert_allclose(out.depth[alpha > 0.05], depth[alpha > 0.05], atol=ATOL, rtol=1e-5)
+    assert alpha.max() > 0.9 and alpha.min() < 0.5  # not a trivial image
+    return out
+
+
+# -- against the reference -------------------------------------------------------------------
+@pytest.mark.parametrize("width,height,k,seed", [(40, 24, 1, 0), (64, 48, 4, 1), (33, 17, 9, 2),
+                                                 (64, 48, 16, 3), (17, 40, 16, 4)])
+def test_matches_reference(width, height, k, seed):
+    rng = np.random.default_rng(seed)
+    g = random_gaussians(rng, 250, k=k)
+    cam = make_camera(width, height, f=(0.8 * width, 0.9 * width))
+    assert_matches_reference(g, cam, background=(0.1, 0.2, 0.3))
+
+
+def test_matches_reference_with_keep_and_near_camera_gaussians():
+    rng = np.random.default_rng(5)
+    g = random_gaussians(rng, 200, k=9)
+    # Gaussians just past the near plane and across the image border.
+    g.means[:20] = np.array([0.3, 0.2, -3.0]) + rng.normal(size=(20, 3)) * [0.3, 0.3, 0.02] \
+        + [0, 0, 0.2]
+    cam = make_camera(48, 32)
+    keep = rng.uniform(size=200) < 0.7
+    assert_matches_reference(g, cam, keep=keep)
+
+
+def test_contributions_match_reference():
+    rng = np.random.default_rng(6)
+    g = random_gaussians(rng, 200, k=4)
+    cam = make_camera(40, 24)
+    mask = rng.uniform(size=(24, 40)) < 0.3
+    keep = rng.uniform(size=200) < 0.8
+    got = contributions(g, cam, mask, keep=keep)
+    assert isinstance(got, Contributions)
+    assert got.pixel.dtype == np.int64 and got.gaussian.dtype == np.int64
+    assert got.weight.dtype == np.float32
+    *_, expected = ref.render(g, cam, keep=keep, mask=mask)
+    assert len(expected) > 200
+    np.testing.assert_array_equal(got.pixel, [e[0] for e in expected])
+    np.testing.assert_array_equal(got.gaussian, [e[1] for e in expected])
+    np.testing.assert_allclose(got.weight, [e[2] for e in expected], atol=1e-5, rtol=0)
+    # Weights reproduce the render at the masked pixels.
+    out = render(g, cam, keep=keep)
+    p = ref.project(g, cam)
+    recon = np.zeros((24 * 40, 3))
+    np.add.at(recon, got.pixel, p["colour"][got.gaussian] * got.weight[:, None])
+    np.testing.assert_allclose(recon[mask.ravel()], out.rgb.reshape(-1, 3)[mask.ravel()],
+                               atol=ATOL)
+    assert set(np.unique(got.pixel)) <= set(np.flatnonzero(mask))
+
+
+# -- closed forms ----------------------------------------------------------------------------
+@pytest.mark.parametrize("opacity,scale,z", [(0.3, 0.02, 2.0), (0.35, 0.005, 1.0)])
+def test_lone_isotropic_gaussian_profile(opacity, scale, z):
+    # On the optical axis J J^T = (f / z)^2 I, so Sigma2D = (s^2 f^2 / z^2 + 0.3) I. With
+    # o < exp(4.5) / 255 alpha drops below 1/255 inside the 3-sigma radius: no tile cut-off.
+    f, (w, h), (cx, cy) = 60.0, (40, 30), (17.3, 13.8)
+    cam = Camera(K=[[f, 0, cx], [0, f, cy], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=w, height=h)
+    out = render(lone_gaussian([0, 0, z], scale, opacity), cam, background=(0.0, 0.0, 1.0))
+    cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    r2 = (cols - cx) ** 2 + (rows - cy) ** 2
+    expected = np.minimum(0.99, opacity * np.exp(-r2 / (2 * (scale**2 * f**2 / z**2 + 0.3))))
+    expected[expected < 1 / 255] = 0
+    np.testing.assert_allclose(out.alpha, expected, atol=1e-6, rtol=1e-5)
+    np.testing.assert_allclose(out.rgb[..., 0], expected, atol=1e-6, rtol=1e-5)
+    np.testing.assert_allclose(out.rgb[..., 2], 0.25 * expected + (1 - expected), atol=1e-6)
+    # depth = D / (1 - T): 1 - (1 - a) in float32 loses up to eps / a relative, a >= 1/255.
+    np.testing.assert_allclose(out.depth[expected > 0], z, rtol=2e-5)
+    assert (out.depth[expected == 0] == 0).all()
+
+
+def test_alpha_is_capped_at_099():
+    cam = Camera(K=[[50, 0, 10.5], [0, 50, 8.5], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=21, height=17)
+    out = render(lone_gaussian([0, 0, 1.0], 0.05, 1.0), cam)
+    assert out.alpha[8, 10] == pytest.approx(0.99, abs=1e-7)
+    assert out.alpha.max() == pytest.approx(0.99, abs=1e-7)
+
+
+def test_world_point_lands_on_projected_pixel():
+    rng = np.random.default_rng(7)
+    cam = make_camera(64, 48, eye=(1.0, -0.5, -2.5), target=(0.1, 0.2, 0.3))
+    points = rng.uniform(-0.6, 0.6, size=(10, 3))
+    uv, z = cam.project(points)
+    assert (z > 0).all() and (uv[:, 0] > 0).all() and (uv[:, 0] < 64).all()
+    for p, (u, v) in zip(points, uv):
+        out = render(lone_gaussian(p, 1e-4, 0.9), cam)
+        row, col = np.unravel_index(np.argmax(out.alpha), out.alpha.shape)
+        assert (row, col) == (int(np.floor(v)), int(np.floor(u)))
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+def test_occlusion_follows_depth_not_index(order):
+    near = lone_gaussian([0, 0, 2.0], 0.3, 0.9, colour=(1.0, 0.0, 0.0))
+    far = lone_gaussian([0, 0, 4.0], 0.6, 0.9, colour=(0.0, 1.0, 0.0))
+    parts = [near, far]
+    g = Gaussians(*(np.concatenate([getattr(parts[i], a) for i in order])
+                    for a in ("means", "scales", "quats", "opacities", "sh")))
+    # Both project onto the centre of pixel (16, 16), where each has alpha 0.9.
+    cam = Camera(K=[[40, 0, 16.5], [0, 40, 16.5], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=32, height=32)
+    out = render(g, cam)
+    np.testing.assert_allclose(out.rgb[16, 16], [0.9, 0.1 * 0.9, 0.0], atol=1e-6)
+    assert out.alpha[16, 16] == pytest.approx(0.99, abs=1e-6)
+    assert out.depth[16, 16] == pytest.approx((0.9 * 2.0 + 0.09 * 4.0) / 0.99, rel=1e-6)
+
+
+def test_culling_near_plane_and_zero_opacity():
+    cam = Camera(K=[[40, 0, 16], [0, 40, 16], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=32, height=32)
+    assert render(lone_gaussian([0, 0, -1.0], 0.3, 1.0), cam).alpha.max() == 0
+    assert render(lone_gaussian([0, 0, 0.05], 0.01, 1.0), cam, near=0.1).alpha.max() == 0
+    assert render(lone_gaussian([0, 0, 0.05], 0.01, 1.0), cam, near=0.01).alpha.max() > 0.9
+    assert render(lone_gaussian([0, 0, 2.0], 0.3, 0.0), cam).alpha.max() == 0
+    assert prepare(lone_gaussian([0, 0, 2.0], 0.3, 0.0), cam).num_visible == 0
+
+
+# -- exactness contracts ---------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def world():
+    rng = np.random.default_rng(11)
+    g = random_gaussians(rng, 3000, k=4, spread=1.0)
+    g.scales[:] *= 0.3
+    cams = [make_camera(72, 56, eye=(np.sin(a) * 3, 0.3, -np.cos(a) * 3)) for a in (0.0, 0.4)]
+    return Scene(g, np.zeros(3000, np.int32), None, cams), rng
+
+
+def assert_same(a: RenderResult, b: RenderResult):
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_keep_equals_subset_render(world):
+    scene, rng = world
+    keep = rng.uniform(size=len(scene)) < 0.6
+    cam = scene.cameras[0]
+    assert_same(render(scene, cam, keep=keep), render(scene.subset(keep), cam))
+    assert_same(prepare(scene, cam).render(keep=keep), render(scene.subset(keep), cam))
+
+
+def test_prepared_render_equals_render(world):
+    scene, _ = world
+    view = prepare(scene, scene.cameras[1])
+    assert isinstance(view, PreparedView)
+    assert view.tile_size == 16 and view.grid == (4, 5)
+    assert 0 < view.num_visible <= len(scene) and view.memory_bytes > 0
+    assert view.camera is scene.cameras[1]
+    assert_same(view.render(background=(0.5, 0.1, 0.0)),
+                render(scene, scene.cameras[1], background=(0.5, 0.1, 0.0)))
+
+
+def test_rerender_equals_full_render(world):
+    scene, rng = world
+    view = prepare(scene, scene.cameras[0])
+    n = len(scene)
+    base_keep = rng.uniform(size=n) < 0.9
+    base = view.render(keep=base_keep)
+    blob = np.linalg.norm(scene.gaussians.means - scene.gaussians.means[0], axis=1) < 0.3
+    changes = [np.zeros(n, bool),                  # nothing: no tile touched
+               np.arange(n) == 5,                  # one Gaussian
+               blob,                               # a clump
+               rng.uniform(size=n) < 0.3]          # scattered, spanning most tiles
+    for change in changes:
+        keep = base_keep & ~change
+        tiles = view.tiles_touched(change)
+        assert tiles.dtype == np.int32 and (np.diff(tiles) > 0).all()
+        got = view.rerender(base, keep=keep, tiles=tiles)
+        full = view.render(keep=keep)
+        for x, y in zip(got, full):
+            assert np.abs(x - y).max() <= 1e-6
+        assert_same(got, full)  # in fact bit for bit
+    assert view.tiles_touched(changes[0]).size == 0
+    assert view.tiles_touched(changes[3]).size > view.num_tiles // 2
+    # Tiles outside tiles_touched are unchanged by a removal: touched tiles are enough.
+    untouched = np.setdiff1d(np.arange(view.num_tiles), view.tiles_touched(blob))
+    assert_same(tuple(view.gather(a, untouched) for a in view.render(keep=base_keep & ~blob)),
+                tuple(view.gather(a, untouched) for a in base))
+
+
+def test_tiles_touched_index_forms_and_invisible(world):
+    scene, _ = world
+    view = prepare(scene, scene.cameras[0])
+    idx = np.array([3, 17, 400, 2999])
+    mask = np.zeros(len(scene), bool)
+    mask[idx] = True
+    np.testing.assert_array_equal(view.tiles_touched(idx), view.tiles_touched(mask))
+    invisible = np.setdiff1d(np.arange(len(scene)), view.visible)
+    assert invisible.size > 0 and view.tiles_touched(invisible).size == 0
+
+
+def test_rerender_tiles_equal_full_renders(world):
+    scene, rng = world
+    view = prepare(scene, scene.cameras[1])
+    n = len(scene)
+    keep = rng.uniform(size=n) < 0.95
+    base = view.render(keep=keep)
+    removals = [np.flatnonzero(rng.uniform(size=n) < p) for p in (0.0, 0.001, 0.01, 0.2)]
+    removals.append(np.array([7, 7, 8]))  # duplicates are fine
+    patches = view.rerender_tiles(keep=keep, removals=removals)
+    assert len(patches) == len(removals)
+    for removal, patch in zip(removals, patches):
+        assert isinstance(patch, TilePatch)
+        np.testing.assert_array_equal(patch.tiles, view.tiles_touched(removal))
+        t = patch.tiles.size
+        assert patch.rgb.shape == (t, 16, 16, 3) and patch.alpha.shape == (t, 16, 16)
+        k = keep.copy()
+        k[removal] = False
+        full = view.render(keep=k)
+        np.testing.assert_array_equal(patch.rgb, view.gather(full.rgb, patch.tiles))
+        np.testing.assert_array_equal(patch.alpha, view.gather(full.alpha, patch.tiles))
+        np.testing.assert_array_equal(patch.depth, view.gather(full.depth, patch.tiles))
+        assert_same(view.scatter(patch, base), full)
+    assert patches[0].tiles.size == 0 and patches[3].tiles.size > 10
+    # Border tiles (72x56 is not a multiple of 16) are zero outside the image.
+    assert (patches[3].alpha[:, 8:, :][patches[3].tiles // 5 == 3] == 0).all()
+    # Explicit tile lists.
+    given = [np.arange(view.num_tiles)] * 2
+    patches = view.rerender_tiles(keep=keep, removals=removals[2:4], tiles_list=given)
+    for removal, patch in zip(removals[2:4], patches):
+        k = keep.copy()
+        k[removal] = False
+        np.testing.assert_array_equal(patch.rgb, view.gather(view.render(keep=k).rgb, given[0]))
+
+
+def test_render_batch_equals_renders(world):
+    scene, rng = world
+    keeps = [None, rng.uniform(size=len(scene)) < 0.5]
+    outs = render_batch(scene, scene.cameras, keeps, background=(0.2, 0.2, 0.2))
+    assert len(outs) == 2
+    for cam, keep, out in zip(scene.cameras, keeps, outs):
+        assert_same(out, render(scene, cam, keep=keep, background=(0.2, 0.2, 0.2)))
+
+
+def test_thread_count_does_not_change_results(world):
+    scene, rng = world
+    cam = scene.cameras[0]
+    keep = rng.uniform(size=len(scene)) < 0.8
+    outs = [render(scene, cam, keep=keep, num_threads=t) for t in (1, 2, 3)]
+    assert_same(outs[0], outs[1])
+    assert_same(outs[0], outs[2])
+    mask = rng.uniform(size=(cam.height, cam.width)) < 0.5
+    c1, c3 = (contributions(scene, cam, mask, num_threads=t) for t in (1, 3))
+    for x, y in zip(c1, c3):
+        np.testing.assert_array_equal(x, y)
+    v1, v3 = prepare(scene, cam, num_threads=1), prepare(scene, cam, num_threads=3)
+    removals = [np.arange(0, 3000, 7), np.arange(50)]
+    for p1, p3 in zip(v1.rerender_tiles(keep=keep, removals=removals),
+                      v3.rerender_tiles(keep=keep, removals=removals)):
+        for x, y in zip(p1, p3):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_empty_scene_and_empty_view():
+    cam = make_camera(20, 10)
+    g = Gaussians(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0),
+                  np.zeros((0, 1, 3)))
+    out = render(g, cam, background=(1.0, 0.0, 0.0))
+    assert (out.rgb[..., 0] == 1).all() and (out.alpha == 0).all() and (out.depth == 0).all()
+    view = prepare(g, cam)
+    assert view.num_visible == 0 and view.tiles_touched(np.zeros(0, int)).size == 0
+
+
+# -- bad input -------------------------------------------------------------------------------
+def test_bad_input_raises():
+    rng = np.random.default_rng(0)
+    g = random_gaussians(rng, 10, k=1)
+    cam = make_camera(20, 10)
+    with pytest.raises(ClearsplatError, match="keep"):
+        render(g, cam, keep=np.ones(9, bool))
+    with pytest.raises(ClearsplatError, match="keep"):
+        render(g, cam, keep=np.ones(10, int))
+    bad = Gaussians(g.means, g.scales, g.quats, g.opacities, g.sh)
+    bad.means = bad.means[:, :2]
+    with pytest.raises(ClearsplatError, match="means"):
+        render(bad, cam)
+    bad = Gaussians(g.means, g.scales, g.quats, g.opacities, np.zeros((10, 5, 3)))
+    with pytest.raises(ClearsplatError, match="sh"):
+        render(bad, cam)
+    bad = Gaussians(g.means, g.scales, g.quats[:9], g.opacities, g.sh)
+    with pytest.raises(ClearsplatError, match="quats"):
+        render(bad, cam)
+    with pytest.raises(ClearsplatError, match="camera"):
+        render(g, "camera")
+    with pytest.raises(ClearsplatError, match="scene"):
+        render(np.zeros((10, 3)), cam)
+    with pytest.raises(ClearsplatError, match="near"):
+        render(g, cam, near=0.0)
+    with pytest.raises(ClearsplatError, match="background"):
+        render(g, cam, background=(0.0, 0.0))
+    with pytest.raises(ClearsplatError, match="num_threads"):
+        render(g, cam, num_threads=0)
+    with pytest.raises(ClearsplatError, match="keeps"):
+        render_batch(g, [cam, cam], [None])
+    with pytest.raises(ClearsplatError, match="mask"):
+        contributions(g, cam, np.ones((20, 10), bool))
+    view = prepare(g, cam)
+    with pytest.raises(ClearsplatError, match="gaussians"):
+        view.tiles_touched(np.array([10]))
+    with pytest.raises(ClearsplatError, match="tiles"):
+        view.rerender(view.render(), keep=None, tiles=np.array([view.num_tiles]))
+    with pytest.raises(ClearsplatError, match="base"):
+        view.rerender(view.render().rgb, keep=None, tiles=np.array([0]))
+    with pytest.raises(ClearsplatError, match="tiles_list"):
+        view.rerender_tiles(keep=None, removals=[np.array([1])], tiles_list=[])
