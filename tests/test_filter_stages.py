@@ -126,6 +126,18 @@ def test_dilate_is_a_disk():
     assert np.array_equal(dilate(m, 0), m)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_dilate_matches_full_image_dilation(seed):
+    from scipy import ndimage
+    rng = np.random.default_rng(seed)
+    m = np.zeros((40, 56), bool)
+    r0, c0 = rng.integers(0, 36), rng.integers(0, 52)   # regions may touch the border
+    m[r0:r0 + rng.integers(1, 6), c0:c0 + rng.integers(1, 6)] = True
+    yy, xx = np.mgrid[-9:10, -9:10]
+    full = ndimage.binary_dilation(m, structure=(yy * yy + xx * xx) <= 81)
+    assert np.array_equal(dilate(m, 9), full)
+
+
 def test_config_presets_and_validation():
     paper = FilterConfig.preset("paper")
     assert (paper.tau1, paper.tau2) == (None, None) and paper.features == "dinov3"

@@ -58,8 +58,9 @@ class FilterConfig:
     refine : {"static-depth", "depth", "none"}
         ``"static-depth"``: a candidate keeps only the Gaussians of its view that lie in front of
         the surface the other views render at their pixel once every proposed Gaussian (of any
-        view) is left out too — the paper's depth condition applied per Gaussian instead of per
-        patch, against a reference that other views' distractors cannot occlude.
+        view) is left out too (falling back to R_i^-i where that leaves a hole) — the paper's
+        depth condition applied per Gaussian instead of per patch, against a reference that other
+        views' distractors cannot occlude.
         ``"depth"``: the same against the plain exclusion render R_i^-i.
         ``"none"``: every Gaussian of the region (the paper).
     refine_margin : float
@@ -95,7 +96,7 @@ class FilterConfig:
     verify_base: Literal["full", "exclude-own"] = "exclude-own"
     joint_base: Literal["exclude-own", "full"] = "exclude-own"
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
-    refine_margin: float = 0.05
+    refine_margin: float = 0.02
     verify_mask: Literal["proposals+revealing", "proposals"] = "proposals+revealing"
     min_score: float = 0.0
     association_min_weight: float = 0.05

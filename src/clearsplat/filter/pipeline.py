@@ -27,6 +27,10 @@ __all__ = ["Candidate", "FilterResult", "filter_distractors"]
 
 Progress = Callable[[str, int, int], None]
 
+#: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
+#: counts as a hole, and the plain exclusion render's depth is used instead.
+_STATIC_MIN_ALPHA = 0.1
+
 
 @dataclass(eq=False)
 class Candidate:
@@ -194,9 +198,14 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
             proposed[g] = True
-        static = [views[i].render(keep=~(own[i] | proposed)).depth
-                  for i in range(scene.num_views)]
-        revealing = revealing_gaussians(scene, index, static, margin=config.refine_margin)
+        reference = []
+        for i in range(scene.num_views):
+            static = views[i].rerender(excl[i], keep=~(own[i] | proposed),
+                                       tiles=views[i].tiles_touched(proposed & ~own[i]))
+            # Where the proposals of the other views leave a hole, fall back to R_i^-i.
+            reference.append(np.where(static.alpha > _STATIC_MIN_ALPHA, static.depth,
+                                      excl[i].depth))
+        revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin)
 
     def to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         g = region_to_gaussians(view, pixels)
@@ -234,8 +243,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         for c in first:
             c.accepted, c.reason = True, "accepted (first range)"
         if second:
-            _second_range_tests(scene, first, second, proposals, verifier, excl, own, config,
-                                report)
+            _second_range_tests(scene, first, second, proposals, verifier, full, excl, own,
+                                config, report)
     keep = np.ones(n, dtype=bool)
     for c in candidates:
         if c.accepted and c.expanded is not None:
@@ -293,7 +302,8 @@ def _individual_tests(scene, candidates, proposals, verifier, full, excl, own, i
             c.reason = "rejected by individual test"
 
 
-def _second_range_tests(scene, first, second, proposals, verifier, excl, own, config, report):
+def _second_range_tests(scene, first, second, proposals, verifier, full, excl, own, config,
+                        report):
     """The additional test of each second-range candidate, then their joint test."""
     q = _exclusion_masks(proposals, 2)
     totals = {c.index: Partial() for c in second}
@@ -319,8 +329,13 @@ def _second_range_tests(scene, first, second, proposals, verifier, excl, own, co
     joint = np.unique(np.concatenate([c.expanded for c in survivors]))
     total = Partial()
     for j, pv in enumerate(verifier.views):
-        base_keep = ~removed_first if config.joint_base == "full" else ~(removed_first | own[j])
-        base = pv.render(keep=base_keep)
+        # Bases are incremental updates of R_j (or R_j^-j): only the tiles that the accepted
+        # first-range candidates touch change.
+        if config.joint_base == "full":
+            base_keep, start = ~removed_first, full[j]
+        else:
+            base_keep, start = ~(removed_first | own[j]), excl[j]
+        base = pv.rerender(start, keep=base_keep, tiles=pv.tiles_touched(removed_first))
         (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
         total.add(p)
         report("joint", j + 1, scene.num_views)

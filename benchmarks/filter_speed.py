@@ -1,0 +1,113 @@
+"""Filter speed on stand-in scenes: per-stage seconds, incremental vs full verification, memory.
+
+Usage::
+
+    python benchmarks/filter_speed.py                       # 4, 8, 16 views at 256x448
+    python benchmarks/filter_speed.py --views 8 --repeats 5 --full-repeats 1
+
+Each view count runs in a fresh subprocess so that its peak resident memory is its own.
+Times are medians over ``--repeats`` runs of the default filter (incremental verification) and
+over ``--full-repeats`` runs of the same filter with ``incremental=False`` (whole images
+re-rendered for every candidate and view); both runs must produce identical output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+
+def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
+          family: str, seed: int) -> dict:
+    import numpy as np
+
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import FilterConfig, filter_distractors
+    from clearsplat.synth import make_world, reconstruct
+
+    world = make_world(family, num_views=views, seed=seed, height=height, width=width)
+    t0 = time.perf_counter()
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
+    t_recon = time.perf_counter() - t0
+    extractor = get_extractor("local")
+    cfg = FilterConfig()
+    inc = [filter_distractors(scene, config=cfg, extractor=extractor) for _ in range(repeats)]
+    full = [filter_distractors(scene, config=cfg.replace(incremental=False),
+                               extractor=extractor) for _ in range(full_repeats)]
+    same = all(np.array_equal(inc[0].keep, r.keep) for r in inc + full)
+
+    def med(runs, key):
+        return statistics.median(r.timings[key] for r in runs)
+
+    out = {
+        "views": views, "gaussians": len(scene), "family": family,
+        "reconstruct_s": t_recon,
+        "proposal_s": med(inc, "proposal"), "verification_s": med(inc, "verification"),
+        "total_s": med(inc, "total"),
+        "candidates": len(inc[0].candidates),
+        "accepted": sum(c.accepted for c in inc[0].candidates),
+        "identical_output": bool(same),
+        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+    }
+    if full:
+        out["full_verification_s"] = med(full, "verification")
+        out["speedup"] = out["full_verification_s"] / out["verification_s"]
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--views", default="4,8,16")
+    p.add_argument("--resolution", default="256x448", help="HxW")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--full-repeats", type=int, default=1,
+                   help="runs with full re-rendering (0 to skip; slow at 16 views)")
+    p.add_argument("--family", default="object")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", help="also write the rows to this file")
+    p.add_argument("--_child", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    h, w = (int(x) for x in args.resolution.lower().split("x"))
+    if args._child:
+        row = _case(int(args._child), h, w, args.repeats, args.full_repeats, args.family,
+                    args.seed)
+        print(json.dumps(row))
+        return 0
+    rows = []
+    for v in [int(x) for x in args.views.split(",")]:
+        cmd = [sys.executable, os.path.abspath(__file__), "--_child", str(v),
+               "--resolution", args.resolution, "--repeats", str(args.repeats),
+               "--full-repeats", str(args.full_repeats), "--family", args.family,
+               "--seed", str(args.seed)]
+        res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+        rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
+        print(f"  done: {v} views", file=sys.stderr)
+    print(f"clearsplat filter speed — {args.family} scenes at {w}x{h}, "
+          f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}; "
+          f"medians of {args.repeats} (incremental) / {args.full_repeats} (full) runs")
+    hdr = (f"{'views':>5} {'Gaussians':>10} {'cands':>6} {'proposal s':>10} {'verify s':>9} "
+           f"{'total s':>8} {'full verify s':>13} {'speedup':>8} {'peak RSS GB':>11} "
+           f"{'same output':>11}")
+    print(hdr)
+    for r in rows:
+        full = r.get("full_verification_s")
+        print(f"{r['views']:>5} {r['gaussians']:>10,} {r['candidates']:>6} "
+              f"{r['proposal_s']:>10.2f} {r['verification_s']:>9.2f} {r['total_s']:>8.2f} "
+              f"{('%.2f' % full) if full else 'n/a':>13} "
+              f"{('%.1fx' % r['speedup']) if full else 'n/a':>8} {r['peak_rss_gb']:>11.2f} "
+              f"{str(r['identical_output']):>11}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
