@@ -76,3 +76,19 @@ def test_gsplat_matches_cpu_render(gpu, sh_degree):
     assert np.abs(cpu.depth - out.depth)[covered].max() < 1e-2
     empty = gpu(g, cam, keep=np.zeros(len(g), bool), background=bg)
     assert np.allclose(empty.rgb, bg) and (empty.alpha == 0).all()
+
+
+def test_render_device_routes_to_gsplat_or_says_what_is_missing():
+    from clearsplat import ClearsplatError, render
+    g, cam = _scene(0)
+    with pytest.raises(ClearsplatError, match="device"):
+        render(g, cam, device="tpu")
+    try:
+        import gsplat  # noqa: F401
+        import torch
+        have_gpu = torch.cuda.is_available()
+    except ImportError:
+        have_gpu = False
+    if not have_gpu:
+        with pytest.raises(ImportError, match="gsplat"):
+            render(g, cam, device="cuda")

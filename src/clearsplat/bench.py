@@ -21,7 +21,52 @@ from .metrics import lpips, lpips_available, psnr, removal_stats, ssim
 from .render import render_batch
 from .synth import clean_reference, distractor_truth, make_world, reconstruct
 
-__all__ = ["BenchCase", "run_case", "run_suite", "format_tables", "write_outputs"]
+__all__ = ["BenchCase", "ABLATIONS", "parse_config", "parse_value", "run_case", "run_suite", "format_tables",
+           "write_outputs"]
+
+#: The ablation of docs/method.md: each departure of the default from the paper switched off
+#: alone, the paper's procedure with and without them, and the paper's own ablations.
+ABLATIONS = {
+    "default": "default",
+    "paper-local": "paper-local",
+    "paper+excl-own": "paper-local+verify_base=exclude-own",
+    "no-refine": "default+refine=none+verify_mask=proposals",
+    "plain-depth": "default+refine=depth",
+    "no-unrel-mask": "default+verify_mask=proposals",
+    "full-base": "default+verify_base=full",
+    "rgb": "default+features=rgb",
+    "single<tau2": "default+single_threshold=true",
+    "single<tau1": "default+second_range=false",
+    "no-verify": "default+verify=false",
+}
+
+
+def parse_config(spec: str) -> FilterConfig:
+    """A config from ``PRESET[+key=value...]``, e.g. ``default+refine=none+tau1=0.4``."""
+    from .errors import ClearsplatError
+    preset, *items = spec.split("+")
+    changes = {}
+    for item in items:
+        if "=" not in item:
+            raise ClearsplatError(f"expected key=value, got {item!r}", field="--config")
+        k, v = item.split("=", 1)
+        changes[k.strip()] = parse_value(v.strip())
+    return FilterConfig.preset(preset.strip()).replace(**changes)
+
+
+def parse_value(text: str):
+    """``"true"``/``"false"``, ``"null"`` (None), ints and floats from text; other text as is."""
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    if low == "null":
+        return None
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
 
 
 @dataclass

@@ -244,13 +244,25 @@ class PreparedView:
 
     def _ids(self, gaussians, field: str) -> np.ndarray:
         """Sorted unique visible ids (int32) of the given Gaussians (invisible ones dropped)."""
-        idx = _check_indices(gaussians, self.num_gaussians, field)
+        a = np.asarray(gaussians)
+        if a.dtype == np.bool_:
+            # A mask over all Gaussians: its visible part, in visible order, is already unique.
+            if a.shape != (self.num_gaussians,):
+                raise ClearsplatError(f"expected a ({self.num_gaussians},) bool mask, got shape "
+                                      f"{a.shape}", field=field)
+            return np.flatnonzero(a[self._index]).astype(np.int32)
+        idx = _check_indices(a, self.num_gaussians, field)
         if self._visible_id is None:
             vid = np.full(self.num_gaussians, -1, dtype=np.int32)
             vid[self._index] = np.arange(self.num_visible, dtype=np.int32)
             self._visible_id = vid
         ids = self._visible_id[idx]
-        return np.unique(ids[ids >= 0]).astype(np.int32)
+        ids = ids[ids >= 0]
+        if ids.size < 4096:
+            return np.unique(ids).astype(np.int32)
+        flags = np.zeros(self.num_visible, dtype=bool)   # a scatter beats sorting large sets
+        flags[ids] = True
+        return np.flatnonzero(flags).astype(np.int32)
 
     def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
         t = np.asarray(tiles)
@@ -491,7 +503,7 @@ def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | Non
 
 
 def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near: float = 0.01,
-           num_threads: int | None = None) -> RenderResult:
+           num_threads: int | None = None, device: str = "cpu") -> RenderResult:
     """Render a scene from a camera.
 
     Parameters
@@ -506,6 +518,10 @@ def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near
         Near plane: Gaussians with camera z below it are culled.
     num_threads : int, optional
         Threads (all cores by default); results do not depend on it.
+    device : str
+        ``"cpu"`` (the native rasterizer) or a CUDA device such as ``"cuda"``, rendered through
+        ``gsplat.rasterization`` (needs PyTorch with CUDA and gsplat; see
+        :func:`clearsplat._gsplat.render_gsplat` for the small differences).
 
     Returns
     -------
@@ -518,6 +534,13 @@ def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near
     >>> out.rgb.shape  # doctest: +SKIP
     (H, W, 3)
     """
+    if str(device) != "cpu":
+        if not str(device).startswith("cuda"):
+            raise ClearsplatError(f"unknown device {device!r}; expected 'cpu' or 'cuda[:N]'",
+                                  field="device")
+        from ._gsplat import render_gsplat
+        return render_gsplat(scene, camera, keep=keep, background=background, near=near,
+                             device=device)
     g = _gaussians(scene)
     _check_gaussians(g)
     camera = _check_camera(camera)

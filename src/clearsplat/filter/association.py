@@ -127,14 +127,23 @@ def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex)
     Centres count when they have positive depth and fall inside the image; ties go to the
     lower view index; ``view`` itself is never chosen.
     """
+    others = [j for j in range(scene.num_views) if j != view]
+    if not others:
+        return []
     means = scene.gaussians.means[index.members[view]]
+    # All cameras in one product: (M, 3) @ (3, 3V) plus translations, in float32.
+    w2c = np.stack([scene.cameras[j].world_to_camera for j in others]).astype(np.float32)
+    pc = means @ w2c[:, :3, :3].transpose(2, 0, 1).reshape(3, -1) + w2c[:, :3, 3].reshape(-1)
+    pc = pc.reshape(len(means), len(others), 3)
     counts = []
-    for j, cam in enumerate(scene.cameras):
-        if j == view:
-            continue
-        uv, z = cam.project(means)
-        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) \
-            & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    for k, j in enumerate(others):
+        cam = scene.cameras[j]
+        x, y, z = pc[:, k, 0], pc[:, k, 1], pc[:, k, 2]
+        front = z > 0
+        zf = np.where(front, z, 1.0)
+        u = cam.fx * x / zf + cam.cx
+        v = cam.fy * y / zf + cam.cy
+        inside = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
         counts.append((-int(inside.sum()), j))
     counts.sort()
     return [j for _, j in counts[:count]]

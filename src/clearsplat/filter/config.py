@@ -70,6 +70,11 @@ class FilterConfig:
         ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
         static reference (its own likely distractors, where the input does not show the static
         scene); needs ``refine`` other than ``"none"``.
+    verify_holes : {"skip", "count"}
+        Pixels where the render after a removal keeps accumulated opacity below ``eta`` show what
+        no remaining Gaussian saw: ``"skip"`` leaves them out of the score; ``"count"`` scores
+        them against the empty background (the paper). Matters when a verifying view is rendered
+        without its own Gaussians and few views remain (two-view captures).
     min_score : float
         Accept a test only when its score exceeds this (the paper: 0, i.e. positive).
     association_min_weight : float
@@ -98,6 +103,7 @@ class FilterConfig:
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
     verify_mask: Literal["proposals+revealing", "proposals"] = "proposals+revealing"
+    verify_holes: Literal["skip", "count"] = "skip"
     min_score: float = 0.0
     association_min_weight: float = 0.05
     incremental: bool = True
@@ -119,6 +125,9 @@ class FilterConfig:
         if self.verify_mask == "proposals+revealing" and self.refine == "none":
             raise ClearsplatError("'proposals+revealing' needs refine other than 'none'",
                                   field="verify_mask")
+        if self.verify_holes not in ("skip", "count"):
+            raise ClearsplatError(f"unknown value {self.verify_holes!r}; expected 'skip' or "
+                                  "'count'", field="verify_holes")
         if self.num_verify_views < 1:
             raise ClearsplatError("must be at least 1", field="num_verify_views")
         if self.dilation < 0:
@@ -152,7 +161,14 @@ class FilterConfig:
 
 
 PRESETS = {
+    # clearsplat's default (see docs/method.md for each departure and its ablation).
     "default": FilterConfig(),
+    # The paper's procedure exactly (DINOv3 features need a local checkpoint).
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
-                          refine="none", verify_mask="proposals", min_score=0.0),
+                          refine="none", verify_mask="proposals", verify_holes="count",
+                          min_score=0.0),
+    # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
+    "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
+                                refine="none", verify_mask="proposals", verify_holes="count",
+                                min_score=0.0),
 }

@@ -222,7 +222,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     # -- verification -------------------------------------------------------------------------
     t0 = time.perf_counter()
     verifier = Verifier(views, scene.images, epsilon=config.epsilon,
-                        incremental=config.incremental)
+                        incremental=config.incremental,
+                        hole_alpha=config.eta if config.verify_holes == "skip" else 0.0)
     support_px = [p.support_pixels for p in proposals]
 
     def expand(c: Candidate) -> np.ndarray:

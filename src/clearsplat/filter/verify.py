@@ -5,7 +5,8 @@ representation B:
 
     E(p)   = |B_j(p) - I_j(p)|_1          E'(p) = |B_j^-C(p) - I_j(p)|_1
     delta  = E - E'                        w(p)  = |B_j^-C(p) - B_j(p)|_1
-    Omega  = {p not in Q_j, w(p) > epsilon}
+    Omega  = {p not in Q_j, w(p) > epsilon}   (and, with ``verify_holes="skip"``, the render
+                                               after removal keeps opacity >= eta at p)
     score  = sum_{j, p in Omega} w delta / sum_{j, p in Omega} w      (0 when the sum is 0)
 
 A removal changes only the tiles its Gaussians touch, so the incremental path re-composites
@@ -53,7 +54,9 @@ def pooled_score(parts) -> float:
 
 
 def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: np.ndarray,
-                          excluded: np.ndarray, epsilon: float) -> Partial:
+                          excluded: np.ndarray, epsilon: float,
+                          removed_alpha: np.ndarray | None = None,
+                          min_alpha: float = 0.0) -> Partial:
     """Sum of ``w * delta`` and ``w`` over the valid pixels of matching pixel arrays.
 
     Parameters
@@ -62,12 +65,17 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
         The same M pixels, in row-major order, before and after the removal, and the input.
     excluded : (M,) bool
         Pixels of the exclusion mask Q.
+    removed_alpha : (M,) float32, optional
+        Accumulated opacity after the removal; pixels below ``min_alpha`` are holes that no
+        remaining Gaussian explains, and are left out.
     """
     base = base_rgb.astype(np.float64)
     after = removed_rgb.astype(np.float64)
     img = image.astype(np.float64)
     w = np.abs(after - base).sum(axis=-1)
     valid = (w > epsilon) & ~excluded
+    if removed_alpha is not None and min_alpha > 0:
+        valid &= removed_alpha >= min_alpha
     if not valid.any():
         return Partial()
     w = w[valid]
@@ -107,11 +115,12 @@ class Verifier:
     """
 
     def __init__(self, views: list[PreparedView], images: list[np.ndarray], *, epsilon: float,
-                 incremental: bool = True):
+                 incremental: bool = True, hole_alpha: float = 0.0):
         self.views = views
         self.images = [im.reshape(-1, 3) for im in images]
         self.epsilon = float(epsilon)
         self.incremental = incremental
+        self.hole_alpha = float(hole_alpha)
 
     def score_view(self, j: int, base_keep: np.ndarray, base: RenderResult,
                    removals: list[np.ndarray], excluded: np.ndarray) -> list[Partial]:
@@ -141,12 +150,14 @@ class Verifier:
                 order = np.argsort(flat, kind="stable")
                 idx = flat[order]
                 after = patch.rgb.reshape(-1, 3)[inside][order]
+                alpha = patch.alpha.reshape(-1)[inside][order]
                 out.append(change_weighted_terms(base_rgb[idx], after, self.images[j][idx],
-                                                 q[idx], self.epsilon))
+                                                 q[idx], self.epsilon, alpha, self.hole_alpha))
             return out
         for removal in removals:
             keep = base_keep.copy()
             keep[removal] = False
-            after = self.views[j].render(keep=keep).rgb.reshape(-1, 3)
-            out.append(change_weighted_terms(base_rgb, after, self.images[j], q, self.epsilon))
+            r = self.views[j].render(keep=keep)
+            out.append(change_weighted_terms(base_rgb, r.rgb.reshape(-1, 3), self.images[j], q,
+                                             self.epsilon, r.alpha.reshape(-1), self.hole_alpha))
         return out
