@@ -81,7 +81,8 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
 
 
 def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
-                        margin: float) -> np.ndarray:
+                        margin: float, reference_rgbs: list[np.ndarray] | None = None,
+                        color_threshold: float | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -97,6 +98,12 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         empty).
     margin : float
         Relative depth gap that counts as "in front".
+    reference_rgbs : list of (H, W, 3) float, optional
+        Colours of the same reference renders; NaN where they should not be used.
+    color_threshold : float, optional
+        With ``reference_rgbs``: a Gaussian also qualifies when its view's input colour differs
+        from the reference colour at its pixel by more than this (L1 over RGB) and it does not
+        lie behind the reference surface (it touches it: the foot of an object on the floor).
     """
     out = np.zeros(len(scene), dtype=bool)
     for view, members in enumerate(index.members):
@@ -107,7 +114,16 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
-        out[members] = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind)
+        front = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind)
+        if color_threshold is not None and reference_rgbs is not None:
+            image = scene.images[view].reshape(-1, 3)
+            ref = reference_rgbs[view].reshape(-1, 3)
+            differ = np.zeros(members.size, dtype=bool)
+            with np.errstate(invalid="ignore"):
+                diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
+            differ[valid] = diff > color_threshold       # False where the reference is NaN
+            front |= differ & (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
+        out[members] = front
     return out
 
 

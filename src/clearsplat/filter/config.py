@@ -65,16 +65,22 @@ class FilterConfig:
         ``"none"``: every Gaussian of the region (the paper).
     refine_margin : float
         Relative depth gap for ``refine="depth"``.
+    refine_color : float or None
+        With ``refine="static-depth"``: also keep Gaussians whose input colour differs from the
+        static reference's colour by more than this (L1 over RGB) and that do not lie behind it
+        (the parts of an object that touch the surface behind it). None: depth only.
     verify_mask : {"proposals+revealing", "proposals"}
         Pixels each verifying view leaves out. ``"proposals"``: its proposal regions (the paper).
         ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
         static reference (its own likely distractors, where the input does not show the static
         scene); needs ``refine`` other than ``"none"``.
-    verify_holes : {"skip", "count"}
+    verify_holes : {"auto", "skip", "count"}
         Pixels where the render after a removal keeps accumulated opacity below ``eta`` show what
-        no remaining Gaussian saw: ``"skip"`` leaves them out of the score; ``"count"`` scores
-        them against the empty background (the paper). Matters when a verifying view is rendered
-        without its own Gaussians and few views remain (two-view captures).
+        no remaining Gaussian saw. ``"count"`` scores them against the empty background (the
+        paper): with three or more views a hole is evidence that no third view supports the
+        removal. ``"skip"`` leaves them out. ``"auto"`` counts them unless the scene has only two
+        views, where every removal opens holes in the one verifying view (rendered without its
+        own Gaussians) and counting them would forbid any removal.
     min_score : float
         Accept a test only when its score exceeds this (the paper: 0, i.e. positive).
     association_min_weight : float
@@ -102,8 +108,9 @@ class FilterConfig:
     joint_base: Literal["exclude-own", "full"] = "exclude-own"
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
+    refine_color: float | None = 0.5
     verify_mask: Literal["proposals+revealing", "proposals"] = "proposals+revealing"
-    verify_holes: Literal["skip", "count"] = "skip"
+    verify_holes: Literal["auto", "skip", "count"] = "auto"
     min_score: float = 0.0
     association_min_weight: float = 0.05
     incremental: bool = True
@@ -125,9 +132,9 @@ class FilterConfig:
         if self.verify_mask == "proposals+revealing" and self.refine == "none":
             raise ClearsplatError("'proposals+revealing' needs refine other than 'none'",
                                   field="verify_mask")
-        if self.verify_holes not in ("skip", "count"):
-            raise ClearsplatError(f"unknown value {self.verify_holes!r}; expected 'skip' or "
-                                  "'count'", field="verify_holes")
+        if self.verify_holes not in ("auto", "skip", "count"):
+            raise ClearsplatError(f"unknown value {self.verify_holes!r}; expected 'auto', "
+                                  "'skip' or 'count'", field="verify_holes")
         if self.num_verify_views < 1:
             raise ClearsplatError("must be at least 1", field="num_verify_views")
         if self.dilation < 0:

@@ -30,6 +30,8 @@ Progress = Callable[[str, int, int], None]
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
 _STATIC_MIN_ALPHA = 0.1
+#: The colour test of ``refine_color`` needs the static reference this opaque at the pixel.
+_COLOR_MIN_ALPHA = 0.9
 
 
 @dataclass(eq=False)
@@ -198,14 +200,20 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
             proposed[g] = True
-        reference = []
+        reference, reference_rgb = [], []
         for i in range(scene.num_views):
             static = views[i].rerender(excl[i], keep=~(own[i] | proposed),
                                        tiles=views[i].tiles_touched(proposed & ~own[i]))
             # Where the proposals of the other views leave a hole, fall back to R_i^-i.
-            reference.append(np.where(static.alpha > _STATIC_MIN_ALPHA, static.depth,
-                                      excl[i].depth))
-        revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin)
+            solid = static.alpha > _STATIC_MIN_ALPHA
+            reference.append(np.where(solid, static.depth, excl[i].depth))
+            # Colours only where the other views cover the pixel fully: a partly covered pixel
+            # (the edge of what they see) mixes in the background and proves nothing.
+            covered = static.alpha >= _COLOR_MIN_ALPHA
+            reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
+        revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
+                                        reference_rgbs=reference_rgb,
+                                        color_threshold=config.refine_color)
 
     def to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         g = region_to_gaussians(view, pixels)
@@ -223,7 +231,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     t0 = time.perf_counter()
     verifier = Verifier(views, scene.images, epsilon=config.epsilon,
                         incremental=config.incremental,
-                        hole_alpha=config.eta if config.verify_holes == "skip" else 0.0)
+                        hole_alpha=config.eta if _skip_holes(config, scene) else 0.0)
     support_px = [p.support_pixels for p in proposals]
 
     def expand(c: Candidate) -> np.ndarray:
@@ -253,6 +261,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     timings["verification"] = time.perf_counter() - t0
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, config)
+
+
+def _skip_holes(config: FilterConfig, scene: Scene) -> bool:
+    """Whether verification leaves out the holes a removal opens (``verify_holes``)."""
+    if config.verify_holes == "auto":
+        return scene.num_views <= 2
+    return config.verify_holes == "skip"
 
 
 def _exclusion_masks(proposals, rng: int) -> list[np.ndarray]:
