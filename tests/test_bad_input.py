@@ -564,3 +564,159 @@ def test_write_image_refuses(tmp_path):
     with raises(str(tmp_path / "a.png"), "image", "non-finite"):
         cio.write_image(tmp_path / "a.png", np.full((4, 4, 3), np.nan))
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------------
+# hardening: symbolic links, 16-bit colour, values beyond float32, memory
+# ------------------------------------------------------------------------------------------------
+def test_symlink_out_of_the_bundle_is_refused(bundle, tmp_path):
+    import os
+    outside = tmp_path / "outside.png"
+    (bundle / "images" / "001.png").rename(outside)
+    os.symlink(outside, bundle / "images" / "001.png")
+    snapshot(bundle)
+    with raises(str(bundle / "cameras.json"), "frames[1].image",
+                "leads out of the bundle through a symbolic link"):
+        cio.load_scene(bundle)
+    # a linked folder that leads out is refused too; links that stay inside are followed
+    (bundle / "images" / "001.png").unlink()
+    outside.rename(bundle / "images" / "001.png")
+    (bundle / "images").rename(tmp_path / "images_elsewhere")
+    os.symlink(tmp_path / "images_elsewhere", bundle / "images")
+    snapshot(bundle)
+    with raises(str(bundle / "cameras.json"), "frames[0].image", "symbolic link"):
+        cio.load_scene(bundle)
+    (bundle / "images").unlink()
+    (tmp_path / "images_elsewhere").rename(bundle / "pictures")
+    os.symlink("pictures", bundle / "images")
+    snapshot(bundle)
+    assert len(cio.load_scene(bundle).images) == 3
+
+
+_ADAM7 = ((0, 0, 8, 8), (0, 4, 8, 8), (4, 0, 8, 4), (0, 2, 4, 4), (2, 0, 4, 2), (0, 1, 2, 2),
+          (1, 0, 2, 1))   # (first row, first column, row step, column step) of each pass
+
+
+def png16(path, samples, color_type, *, interlace=False, sub_filter=False):
+    """A 16-bit PNG written from the specification (Pillow cannot write 16-bit colour)."""
+    import struct
+    import zlib
+
+    arr = np.asarray(samples, dtype=">u2")
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    bpp = 2 * arr.shape[2]
+
+    def rows(a):
+        out = b""
+        for row in a:
+            raw = np.frombuffer(row.tobytes(), np.uint8).astype(np.int16)
+            if sub_filter:      # filter type 1: each byte minus the one a pixel to the left
+                raw[bpp:] = (raw[bpp:] - raw[:-bpp]) % 256
+            out += bytes([int(sub_filter)]) + raw.astype(np.uint8).tobytes()
+        return out
+    passes = [arr[r::dr, c::dc] for r, c, dr, dc in _ADAM7] if interlace else [arr]
+    data = b"".join(rows(p) for p in passes if p.size)
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(
+            ">I", zlib.crc32(kind + body))
+    ihdr = struct.pack(">IIBBBBB", arr.shape[1], arr.shape[0], 16, color_type, 0, 0,
+                       int(interlace))
+    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+                           + chunk(b"IDAT", zlib.compress(data)) + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("interlace", [False, True])
+@pytest.mark.parametrize("sub_filter", [False, True])
+@pytest.mark.parametrize("color_type, channels", [(2, 3), (6, 4), (4, 2)])
+def test_16bit_colour_png_keeps_full_precision(tmp_path, color_type, channels, interlace,
+                                               sub_filter):
+    rng = np.random.default_rng(color_type)
+    samples = rng.integers(0, 65536, (13, 19, channels)).astype(np.uint16)
+    samples[0, 0] = 257 * 7 + 1          # a low byte that 8-bit precision would lose
+    png16(tmp_path / "x.png", samples, color_type, interlace=interlace, sub_filter=sub_filter)
+    got = cio.read_image(tmp_path / "x.png", expected_size=(19, 13))
+    colour = samples[..., :3] if channels >= 3 else np.repeat(samples[..., :1], 3, axis=2)
+    expected = colour.astype(np.float32) / np.float32(65535.0)
+    assert got.dtype == np.float32 and got.shape == (13, 19, 3)
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_16bit_png_of_the_wrong_size_or_damaged(tmp_path):
+    png16(tmp_path / "x.png", np.zeros((4, 5, 3), np.uint16), 2)
+    with raises(str(tmp_path / "x.png"), "width", "camera says 6x4"):
+        cio.read_image(tmp_path / "x.png", expected_size=(6, 4))
+    data = (tmp_path / "x.png").read_bytes()
+    (tmp_path / "x.png").write_bytes(data[:45])
+    with raises(str(tmp_path / "x.png"), "image", "cannot"):
+        cio.read_image(tmp_path / "x.png")
+
+
+def test_values_beyond_float32_are_refused(plyfile):
+    cols = with_column(props(), "x", [0.0, 1e300, 0.0, 0.0], typ="double")
+    p = plyfile(ply(cols))
+    with raises(str(p), "x", r"value 1e\+300 \(vertex 1\) is outside the float32 range"):
+        cio.read_ply(p)
+    cols = with_column(props(), "rot_2", [0.0, 0.0, 0.0, 1e40])
+    p = plyfile(ply(cols, fmt="ascii"), name="a.ply")
+    with raises(str(p), "rot_2", "vertex 3: '1e\\+40' does not fit in float"):
+        cio.read_ply(p)
+
+
+@pytest.mark.parametrize("value, reason", [(10**400, "non-finite"),
+                                           (1e300, "outside the float32 range")])
+def test_cameras_beyond_float32_are_refused(bundle, value, reason):
+    edit_cameras(bundle, lambda d: d["frames"][1]["camera_to_world"][0].__setitem__(3, value))
+    with raises(str(bundle / "cameras.json"), "frames[1].camera_to_world[0][3]", reason):
+        cio.load_scene(bundle)
+
+
+def test_memory_estimate_and_check(monkeypatch):
+    from clearsplat import _memory as m
+    cam = Camera(K=[[10.0, 0, 4], [0, 10.0, 3], [0, 0, 1]], camera_to_world=np.eye(4), width=8,
+                 height=6)
+    # closed form: V views x N x (60 + 4 t + 5) + 100 N + 360 per pixel
+    assert m.estimate_filter_memory(1000, [cam] * 3) == 3 * 1000 * 73 + 100 * 1000 + 360 * 144
+    assert m.estimate_filter_memory(1000, [cam] * 3, tiles_per_gaussian=4.0,
+                                    visible_fraction=0.5) == \
+        int(3 * 1000 * (0.5 * 76 + 5) + 100 * 1000 + 360 * 144)
+    assert m.estimate_read_memory(10**6) == 5 * 10**6
+    assert m.estimate_read_memory(10**6, ascii=True) == 20 * 10**6
+    m.check_memory(10**9, available=2 * 10**9)
+    with pytest.raises(ClearsplatError, match=r"^memory: the filter needs about 3\.0 GB, 2\.0 GB "
+                       "available"):
+        m.check_memory(3 * 10**9, available=2 * 10**9)
+    with pytest.raises(ClearsplatError, match=r"^a\.ply: gaussians: reading needs about "
+                       r"0\.5 GB, 0\.1 GB available: buy more"):
+        m.check_memory(5 * 10**8, available=10**8, what="reading", path="a.ply",
+                       field="gaussians", advice="buy more")
+    monkeypatch.setenv("CLEARSPLAT_MEMORY_CHECK", "0")
+    m.check_memory(3 * 10**9, available=2 * 10**9)
+    monkeypatch.delenv("CLEARSPLAT_MEMORY_CHECK")
+    monkeypatch.setattr(m, "available_memory", lambda: None)     # unknown: nothing checked
+    m.check_memory(10**15)
+
+
+def test_available_memory_reads_the_system_and_cgroup_limits(monkeypatch):
+    from clearsplat import _memory as m
+    avail = m.available_memory()
+    assert avail is None or avail > 0
+    files = {"/sys/fs/cgroup/memory.max": 8 * 2**30, "/sys/fs/cgroup/memory.current": 7 * 2**30}
+    monkeypatch.setattr(m, "_read_int", lambda p: files.get(p))
+    monkeypatch.setattr(m, "_stat_value", lambda p, k: 2**29 if k == "inactive_file" else 0)
+    assert m._cgroup_available() == 8 * 2**30 - (7 * 2**30 - 2**29)
+    files["/sys/fs/cgroup/memory.max"] = None                   # "max": no limit
+    assert m._cgroup_available() is None
+
+
+def test_read_ply_refuses_a_file_too_large_for_memory(plyfile, monkeypatch):
+    from clearsplat import _memory as m
+    import clearsplat.io.ply as ply_module
+    p = plyfile(ply(props()))
+    monkeypatch.setattr(ply_module, "_CHECK_ABOVE", 0)
+    monkeypatch.setattr(m, "available_memory", lambda: 100)
+    with raises(str(p), "gaussians", "reading this file needs about"):
+        cio.read_ply(p)
+    monkeypatch.setattr(m, "available_memory", lambda: 10**9)
+    assert len(cio.read_ply(p)[0]) == 4

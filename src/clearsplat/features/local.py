@@ -166,9 +166,11 @@ class LocalDescriptor(FeatureExtractor):
         i0 %= _N_ORIENT
         i1 = (i0 + 1) % _N_ORIENT
         out = np.zeros(lum.shape[:1] + gx.shape[1:] + (_N_ORIENT,), dtype=np.float32)
-        np.put_along_axis(out, i0[..., None], (mag * (1.0 - t))[..., None], axis=-1)
-        # i1 != i0 always (8 bins), so the second put does not overwrite the first.
-        np.put_along_axis(out, i1[..., None], (mag * t)[..., None], axis=-1)
+        flat = out.reshape(-1)
+        base = np.arange(i0.size, dtype=np.int64) * _N_ORIENT
+        # i1 != i0 always (8 bins), so the second scatter does not overwrite the first.
+        flat[base + i0.ravel()] = (mag * (1.0 - t)).ravel()
+        flat[base + i1.ravel()] = (mag * t).ravel()
         return out
 
     @staticmethod

@@ -13,6 +13,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._memory import check_memory, estimate_filter_memory
 from ..errors import ClearsplatError
 from ..features import get_extractor
 from ..render import prepare
@@ -161,6 +162,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                if scene.num_views < 2 else "the scene has no Gaussians")
         warnings.warn(msg, stacklevel=2)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
+    check_memory(estimate_filter_memory(n, scene.cameras))
     report = progress or (lambda stage, done, total: None)
     extractor = extractor or get_extractor(config.features, **(
         {"checkpoint": config.checkpoint} if config.checkpoint else {}))
@@ -179,6 +181,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         full.append(pv.render())
         excl.append(pv.render(keep=~own[i]))
         report("render", i + 1, scene.num_views)
+    if not any(pv.num_visible for pv in views):
+        msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
+               "can be verified, the scene is returned unchanged")
+        warnings.warn(msg, stacklevel=2)
+        return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
     sims = extractor.similarity(np.stack(scene.images), np.stack([r.rgb for r in excl]))
     proposals: list[ViewProposal] = []
     for i in range(scene.num_views):

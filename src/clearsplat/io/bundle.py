@@ -14,7 +14,8 @@ Layout::
                  "camera_to_world": [[...], [...], [...], [0, 0, 0, 1]]}, ...]}
 
 ``camera_to_world`` is in OpenCV axes (``docs/conventions.md``). Image paths are relative to
-the bundle; absolute paths and paths with ``..`` are refused (symbolic links are followed).
+the bundle; absolute paths, paths with ``..`` and paths that a symbolic link leads out of the
+bundle are refused (links that stay inside are followed).
 
 A nerfstudio ``transforms.json`` is read in its place: ``transform_matrix`` in OpenGL axes,
 ``fl_x fl_y cx cy w h`` at the top level or per frame (per frame wins), ``file_path`` per
@@ -49,6 +50,7 @@ GAUSSIANS_FILE = "gaussians.ply"
 _BUNDLE_MARKERS = (CAMERAS_FILE, TRANSFORMS_FILE, GAUSSIANS_FILE)
 _PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")
 _DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -58,9 +60,15 @@ def _number(value, path, field, *, positive=False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ClearsplatError(f"expected a number, got {json.dumps(value)[:40]}", path=path,
                               field=field)
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:               # a JSON integer beyond the float range
+        v = math.inf
     if not math.isfinite(v):
-        raise ClearsplatError(f"non-finite value {value}", path=path, field=field)
+        raise ClearsplatError(f"non-finite value {str(value)[:20]}", path=path, field=field)
+    if abs(v) > _FLOAT32_MAX:           # would be inf in the float32 the renderer uses
+        raise ClearsplatError(f"value {value:.3g} is outside the float32 range", path=path,
+                              field=field)
     if positive and not v > 0:
         raise ClearsplatError(f"must be positive, got {value}", path=path, field=field)
     return v
@@ -97,7 +105,9 @@ def _camera(path, field, **kwargs) -> Camera:
     """Build a Camera, relabelling its errors with the file and the frame."""
     opengl = kwargs.pop("opengl", False)
     try:
-        return Camera.from_opengl(**kwargs) if opengl else Camera(**kwargs)
+        # Subnormal entries make the rigidity check's determinant warn; the check still decides.
+        with np.errstate(all="ignore"):
+            return Camera.from_opengl(**kwargs) if opengl else Camera(**kwargs)
     except ClearsplatError as e:
         raise ClearsplatError(e.reason, path=path, field=f"{field}.{e.field}") from None
 
@@ -106,6 +116,8 @@ def _relative_image_path(value, path, field) -> str:
     if not isinstance(value, str) or not value:
         raise ClearsplatError("expected a non-empty relative path string", path=path,
                               field=field)
+    if "\x00" in value:
+        raise ClearsplatError("path contains a NUL character", path=path, field=field)
     posix, win = PurePosixPath(value), PureWindowsPath(value)
     if posix.is_absolute() or win.is_absolute() or win.drive:
         raise ClearsplatError(f"absolute path {value!r} refused: image paths must be relative "
@@ -162,7 +174,8 @@ def load_cameras(path) -> tuple[list, list]:
     ClearsplatError
         Naming the file and the key (``frames[2].K``): malformed JSON, missing key,
         non-finite number, singular / mirrored / scaled rotation, skewed intrinsics,
-        distortion, or an image path that leaves the bundle.
+        distortion, or an image path that leaves the bundle (``..``, absolute, or through a
+        symbolic link).
     """
     path = Path(path)
     if path.is_dir():
@@ -193,8 +206,33 @@ def load_cameras(path) -> tuple[list, list]:
         else:
             cam, image = _clearsplat_frame(frame, path, field)
         cameras.append(cam)
-        images.append(None if image is None else path.parent / image)
+        key = "file_path" if nerfstudio else "image"
+        images.append(None if image is None
+                      else _inside_bundle(path.parent, image, path, f"{field}.{key}"))
     return cameras, images
+
+
+def _is_file(p: Path) -> bool:
+    """``p.is_file()``, False where the name itself is unusable (too long, ...)."""
+    try:
+        return p.is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def _inside_bundle(folder: Path, image: str, path, field) -> Path:
+    """``folder / image``, refused when a symbolic link on the way leads out of ``folder``."""
+    full = folder / image
+    try:
+        real, root = full.resolve(), folder.resolve()
+    except (OSError, RuntimeError) as e:       # a link loop
+        raise ClearsplatError(f"cannot resolve image path {image!r} ({e})", path=path,
+                              field=field) from None
+    if not real.is_relative_to(root):
+        raise ClearsplatError(f"image path {image!r} leads out of the bundle through a "
+                              f"symbolic link (to {real}); copy the file into the bundle",
+                              path=path, field=field)
+    return full
 
 
 def _require(obj: dict, key: str, path, field):
@@ -265,7 +303,7 @@ def _nerfstudio_frame(doc: dict, frame: dict, path, field):
     image = frame.get("file_path")
     if image is not None:
         image = _relative_image_path(image, path, f"{field}.file_path")
-        if not PurePosixPath(image).suffix and (path.parent / (image + ".png")).exists():
+        if not PurePosixPath(image).suffix and _is_file(path.parent / (image + ".png")):
             image += ".png"     # Blender-style paths without extension
     return cam, image
 
@@ -383,7 +421,7 @@ def load_scene(path, *, require_images: bool = True) -> Scene:
     _check_association(view_id, pixel_id, cameras, ply)
 
     key = "image" if camera_file.name == CAMERAS_FILE else "file_path"
-    missing = [i for i, p in enumerate(image_paths) if p is None or not p.is_file()]
+    missing = [i for i, p in enumerate(image_paths) if p is None or not _is_file(p)]
     images = None
     if missing and require_images:
         i = missing[0]

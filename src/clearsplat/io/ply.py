@@ -262,12 +262,20 @@ def _parse_column(words: np.ndarray, prop: _Property, path) -> np.ndarray:
     dtype = np.dtype(prop.dtype)
     try:
         if dtype.kind == "f":
-            return np.ascontiguousarray(words.astype(np.float64).astype(dtype))
-        values = words.astype(np.int64) if dtype != np.uint64 else words.astype(np.uint64)
+            values = words.astype(np.float64)
+        else:
+            values = words.astype(np.int64) if dtype != np.uint64 else words.astype(np.uint64)
     except (ValueError, OverflowError):
-        bad = next(i for i, w in enumerate(words) if not _parses(w, dtype))
+        bad = next((i for i, w in enumerate(words) if not _parses(w, dtype)), 0)
         raise ClearsplatError(f"vertex {bad}: {str(words[bad])!r} is not a valid {prop.token}",
                               path=path, field=prop.name) from None
+    if dtype.kind == "f":
+        big = np.abs(values) > np.finfo(dtype).max      # finite, but inf once cast
+        if big.any():
+            i = int(np.argmax(big))
+            raise ClearsplatError(f"vertex {i}: {str(words[i])!r} does not fit in {prop.token}",
+                                  path=path, field=prop.name)
+        return np.ascontiguousarray(values.astype(dtype))
     info = np.iinfo(dtype)
     out_of_range = (values < info.min) | (values > info.max)
     if out_of_range.any():
@@ -344,9 +352,11 @@ def read_ply(path) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
     ClearsplatError
         Naming the file and the property: unreadable or truncated file, missing property,
         non-finite value, a log scale outside the float32 range, a zero quaternion,
-        a non-integer ``view_id``/``pixel_id``.
+        a non-integer ``view_id``/``pixel_id``; or (field ``gaussians``) a file too large to
+        decode in the available memory, refused before it is read.
     """
     path = Path(path)
+    _check_read_memory(path)
     try:
         data = path.read_bytes()
     except FileNotFoundError:
@@ -361,6 +371,27 @@ def read_ply(path) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
     return _columns_to_gaussians(cols, types, header.comments, path)
 
 
+def _check_read_memory(path: Path) -> None:
+    """Refuse, before reading it, a file whose decoding would not fit in memory."""
+    from .._memory import check_memory, estimate_read_memory
+
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(256)
+    except OSError:
+        return                  # reported by the read that follows
+    estimate = estimate_read_memory(size, ascii=b"format ascii" in head)
+    if estimate > _CHECK_ABOVE:
+        check_memory(estimate, what="reading this file", path=path, field="gaussians",
+                     advice="use a machine with more memory (an ASCII file needs about four "
+                            "times more than a binary one)")
+
+
+#: Files whose estimated decoding memory is below this are read without asking the system.
+_CHECK_ABOVE = 256 * 2**20
+
+
 def _columns_to_gaussians(cols: dict, types: dict, comments: list, path):
     for name in _REQUIRED:
         if name not in cols:
@@ -372,6 +403,14 @@ def _columns_to_gaussians(cols: dict, types: dict, comments: list, path):
             i = int(np.argmax(~np.isfinite(col)))
             raise ClearsplatError(f"non-finite value {col[i]} (first at vertex {i})",
                                   path=path, field=name)
+    for name in _XYZ + _DC + _ROT + tuple(c for c in cols if _REST_RE.match(c)):
+        col = cols[name]
+        if col.dtype.kind == "f" and col.dtype.itemsize > 4:
+            big = np.abs(col) > np.finfo(np.float32).max
+            if big.any():
+                i = int(np.argmax(big))
+                raise ClearsplatError(f"value {col[i]:.3g} (vertex {i}) is outside the float32 "
+                                      "range", path=path, field=name)
     n = len(cols["x"])
     rest = sorted((int(m.group(1)), name) for name in cols
                   if (m := _REST_RE.match(name)))
