@@ -152,3 +152,22 @@ def test_config_presets_and_validation():
         FilterConfig().replace(colour="red")
     with pytest.raises(ClearsplatError, match="tau1"):
         FilterConfig(tau1=0.8, tau2=0.7)
+
+
+def test_view_index_gathers_the_gaussians_of_a_region():
+    from clearsplat import Camera, Gaussians, Scene
+    from clearsplat.filter.association import ViewIndex, region_gaussians
+    rng = np.random.default_rng(3)
+    cams = [Camera(K=[[20.0, 0, 6], [0, 20.0, 4], [0, 0, 1]], camera_to_world=np.eye(4),
+                   width=12, height=8) for _ in range(3)]
+    n = 500
+    view = rng.integers(0, 3, n)
+    pixel = rng.integers(0, 96, n)            # several Gaussians per pixel, some pixels empty
+    g = Gaussians(rng.normal(size=(n, 3)) + [0, 0, 5], np.full((n, 3), 0.1),
+                  np.tile([1.0, 0, 0, 0], (n, 1)), np.full(n, 0.5), np.zeros((n, 1, 3)))
+    scene = Scene(g, view, pixel, cams)
+    index = ViewIndex(scene)
+    for v in range(3):
+        region = rng.random((8, 12)) < 0.3
+        expected = np.flatnonzero((view == v) & region.ravel()[pixel])
+        assert np.array_equal(region_gaussians(scene, v, region, index=index), expected)

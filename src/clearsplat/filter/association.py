@@ -25,6 +25,26 @@ class ViewIndex:
         bounds = np.searchsorted(scene.view_id[order], np.arange(scene.num_views + 1))
         self.members = [order[bounds[i]:bounds[i + 1]] for i in range(scene.num_views)]
         self.pixels = [scene.pixel_id[m] for m in self.members]
+        # Pixel -> Gaussians of each view as CSR (pixel-aligned Gaussians only): a region's
+        # Gaussians are then gathered in time proportional to the region, not the view.
+        self._by_pixel = []
+        for i, cam in enumerate(scene.cameras):
+            pid = self.pixels[i]
+            aligned = np.flatnonzero(pid >= 0)
+            by = aligned[np.argsort(pid[aligned], kind="stable")]
+            starts = np.searchsorted(pid[by], np.arange(cam.width * cam.height + 1))
+            self._by_pixel.append((self.members[i][by], starts))
+
+    def at_pixels(self, view: int, flat_pixels: np.ndarray) -> np.ndarray:
+        """Pixel-aligned Gaussians of ``view`` at the given flat pixel indices (unsorted)."""
+        gaussians, starts = self._by_pixel[view]
+        lo, hi = starts[flat_pixels], starts[flat_pixels + 1]
+        counts = hi - lo
+        if counts.sum() == 0:
+            return np.empty(0, dtype=np.int64)
+        # Concatenate the ranges [lo, hi) without a Python loop.
+        offsets = np.repeat(lo - np.cumsum(counts) + counts, counts)
+        return gaussians[offsets + np.arange(counts.sum())]
 
     def mask(self, view: int, n: int) -> np.ndarray:
         """(N,) bool mask of the Gaussians of ``view``."""
@@ -49,10 +69,10 @@ def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: View
     """
     members, pid = index.members[view], index.pixels[view]
     flat = pixels.ravel()
+    chosen = np.sort(index.at_pixels(view, np.flatnonzero(flat)))
     aligned = pid >= 0
-    chosen = members[aligned][flat[pid[aligned]]]
     if aligned.all() or not flat.any():
-        return np.sort(chosen)
+        return chosen
     own = np.zeros(len(scene), dtype=bool)
     own[members] = True
     contrib = contributions(scene, scene.cameras[view], pixels, keep=own)
