@@ -131,6 +131,19 @@ class FilterResult:
         }
 
 
+class _Laps:
+    """Seconds per sub-stage, recorded as ``timings["<stage>.<step>"]``."""
+
+    def __init__(self, timings: dict, stage: str):
+        self.timings, self.stage, self.last = timings, stage, time.perf_counter()
+
+    def __call__(self, step: str) -> None:
+        now = time.perf_counter()
+        key = f"{self.stage}.{step}"
+        self.timings[key] = self.timings.get(key, 0.0) + now - self.last
+        self.last = now
+
+
 def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                        extractor=None, progress: Progress | None = None) -> FilterResult:
     """Find the Gaussians of transient distractors in a feed-forward prediction.
@@ -172,14 +185,17 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
     # -- proposal -----------------------------------------------------------------------------
     t0 = time.perf_counter()
+    lap = _Laps(timings, "proposal")
     index = ViewIndex(scene)
     own = [index.mask(i, n) for i in range(scene.num_views)]
     views, full, excl = [], [], []
     for i, cam in enumerate(scene.cameras):
         pv = prepare(scene, cam, num_threads=threads)
         views.append(pv)
+        lap("prepare")
         full.append(pv.render())
         excl.append(pv.render(keep=~own[i]))
+        lap("exclusion_renders")
         report("render", i + 1, scene.num_views)
     if not any(pv.num_visible for pv in views):
         msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
@@ -187,6 +203,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         warnings.warn(msg, stacklevel=2)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
     sims = extractor.similarity(np.stack(scene.images), np.stack([r.rgb for r in excl]))
+    lap("features")
     proposals: list[ViewProposal] = []
     for i in range(scene.num_views):
         proposals.append(propose_view(
@@ -199,6 +216,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
     regions = [r for prop in proposals for r in prop.regions]
     raw = [region_to_gaussians(r.view, r.pixels) for r in regions]
+    lap("regions")
     revealing = None
     if config.refine == "depth":
         revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
@@ -221,21 +239,25 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                         reference_rgbs=reference_rgb,
                                         color_threshold=config.refine_color)
+    lap("refine")
+
+    def refined(g: np.ndarray) -> np.ndarray:
+        return g if revealing is None else g[revealing[g]]
 
     def to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
-        g = region_to_gaussians(view, pixels)
-        return g if revealing is None else g[revealing[g]]
+        return refined(region_to_gaussians(view, pixels))
 
     if config.verify_mask == "proposals+revealing":
         for prop in proposals:
             prop.unreliable = pixels_of(scene, index, prop.view, revealing)
-    candidates = [Candidate(k, r.view, r.range, r.pixels,
-                            g if revealing is None else g[revealing[g]])
+    candidates = [Candidate(k, r.view, r.range, r.pixels, refined(g))
                   for k, (r, g) in enumerate(zip(regions, raw))]
+    lap("regions")
     timings["proposal"] = time.perf_counter() - t0
 
     # -- verification -------------------------------------------------------------------------
     t0 = time.perf_counter()
+    lap = _Laps(timings, "verification")
     verifier = Verifier(views, scene.images, epsilon=config.epsilon,
                         incremental=config.incremental,
                         hole_alpha=config.eta if _skip_holes(config, scene) else 0.0)
@@ -251,9 +273,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     else:
         _individual_tests(scene, candidates, proposals, verifier, full, excl, own, index,
                           config, report)
+        lap("individual")
         passed = [c for c in candidates if c.reason == "passed individual test"]
         for c in passed:
             c.expanded = expand(c)
+        lap("expand")
         first = [c for c in passed if c.range == 1]
         second = [c for c in passed if c.range == 2]
         for c in first:
@@ -261,6 +285,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         if second:
             _second_range_tests(scene, first, second, proposals, verifier, full, excl, own,
                                 config, report)
+        lap("second_range")
     keep = np.ones(n, dtype=bool)
     for c in candidates:
         if c.accepted and c.expanded is not None:
