@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from clearsplat import Camera, Gaussians, Scene
+from clearsplat.cameras import look_at
 from clearsplat import _render
 from clearsplat.render import prepare, render
 from clearsplat.scene import rgb_to_sh_dc
@@ -31,18 +32,6 @@ from clearsplat.scene import rgb_to_sh_dc
 WIDTH, HEIGHT, FOCAL = 448, 256, 400.0
 SPHERES = [((0.0, 0.6, 0.0), 0.6, (0.85, 0.25, 0.2)), ((-1.3, 0.4, 0.8), 0.4, (0.2, 0.6, 0.9)),
            ((1.2, 0.5, -0.7), 0.5, (0.3, 0.8, 0.35))]
-
-
-def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """OpenCV camera-to-world (x right, y down, z forward) in a y-up world."""
-    eye = np.asarray(eye, float)
-    f = np.asarray(target, float) - eye
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, np.cross(f, r), f, eye
-    return c2w
 
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
@@ -57,7 +46,7 @@ def cameras() -> list[Camera]:
     cams = []
     for a in np.linspace(-0.6, 0.6, 8):
         eye = (4.0 * np.sin(a), 2.2, -4.0 * np.cos(a))
-        cams.append(Camera(K=K, camera_to_world=look_at(eye, (0.0, 0.0, 0.5)),
+        cams.append(Camera(K=K, camera_to_world=look_at(eye, (0.0, 0.0, 0.5), up=(0.0, 1.0, 0.0)),
                            width=WIDTH, height=HEIGHT))
     return cams
 

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clearsplat import Camera, ClearsplatError
+from clearsplat.cameras import look_at
 from clearsplat.adapters import (covariance_to_scales_quats, from_anysplat, from_depthsplat,
                                  from_mvsplat, from_noposplat, from_pixel_aligned,
                                  from_resplat, from_yonosplat, rotate_sh,
@@ -25,22 +26,10 @@ except ImportError:  # the adapters never need it; the tensor cases are skipped
 H, W = 12, 16
 
 
-def _look_at(eye, target):
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, -1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([x, y, z], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
-
-
 def _cameras(v=2, h=H, w=W):
     K = np.array([[18.0, 0, w / 2], [0, 18.0, h / 2], [0, 0, 1]])
-    return [Camera(K=K, camera_to_world=_look_at(np.array([0.3 * i - 0.15, 0.05 * i, -3.0]),
-                                                 [0, 0, 0]), width=w, height=h)
+    return [Camera(K=K, camera_to_world=look_at(np.array([0.3 * i - 0.15, 0.05 * i, -3.0]),
+                                                 [0, 0, 0], up=(0.0, -1.0, 0.0)), width=w, height=h)
             for i in range(v)]
 
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from clearsplat import Camera, Gaussians, Scene
+from clearsplat.cameras import look_at
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians, verification_views
@@ -129,24 +130,10 @@ def test_output_does_not_depend_on_thread_count(scene, extractor):
     assert np.array_equal(a.keep, b.keep)
 
 
-def _look_at(eye, target):
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, -1.0, 0.0])
-    if np.linalg.norm(x) < 1e-9:
-        x = np.array([1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([x, y, z], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
-
-
 def test_verification_views_are_those_seeing_most_centres():
     K = [[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]
-    cams = [Camera(K=K, camera_to_world=_look_at(e, t), width=64, height=48) for e, t in [
+    cams = [Camera(K=K, camera_to_world=look_at(e, t, up=(0.0, -1.0, 0.0)), width=64, height=48)
+            for e, t in [
         ((0, 0, 0), (0, 0, 5)),        # view 0: the Gaussians' view
         ((3, 0, 0), (3, 0, 5)),        # sees the right part only
         ((0.2, 0, 0), (0, 0, 5)),      # sees almost all

@@ -7,6 +7,7 @@ import pytest
 
 import reference_rasterizer as ref
 from clearsplat import Camera, ClearsplatError, Gaussians, Scene
+from clearsplat.cameras import look_at
 from clearsplat.render import (Contributions, PreparedView, RenderResult, TilePatch,
                                contributions, prepare, render, render_batch)
 from clearsplat.scene import rgb_to_sh_dc
@@ -15,23 +16,11 @@ from clearsplat.scene import rgb_to_sh_dc
 ATOL = 1e-4
 
 
-def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
-    """OpenCV camera-to-world looking from ``eye`` at ``target`` (y down)."""
-    eye = np.asarray(eye, float)
-    f = np.asarray(target, float) - eye
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, np.cross(f, r), f, eye
-    return c2w
-
-
 def make_camera(width, height, *, eye=(0.3, 0.2, -3.0), target=(0.0, 0.0, 0.0), f=(50.0, 55.0),
                 c=None) -> Camera:
     cx, cy = c if c is not None else (width / 2 + 0.3, height / 2 - 0.2)
     return Camera(K=[[f[0], 0, cx], [0, f[1], cy], [0, 0, 1]],
-                  camera_to_world=look_at(eye, target), width=width, height=height)
+                  camera_to_world=look_at(eye, target, up=(0.0, -1.0, 0.0)), width=width, height=height)
 
 
 def random_gaussians(rng, n, *, k=16, spread=1.2) -> Gaussians:

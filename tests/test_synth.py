@@ -8,7 +8,8 @@ from clearsplat.synth import raycast as rc
 from clearsplat.synth.backbone import (clean_reference, distractor_truth, reconstruct,
                                        rotation_to_quat)
 from clearsplat.synth.textures import Texture, value_noise
-from clearsplat.synth.worlds import look_at, make_world
+from clearsplat.cameras import look_at
+from clearsplat.synth.worlds import make_world
 
 H, W = 64, 112
 FAMILIES = ("object", "street")

@@ -14,11 +14,28 @@ import numpy as np
 
 from .errors import ClearsplatError
 
-__all__ = ["Camera", "OPENGL_TO_OPENCV"]
+__all__ = ["Camera", "OPENGL_TO_OPENCV", "look_at"]
 
 #: Flips y and z: converts camera axes between OpenGL (x right, y up, z back)
 #: and OpenCV (x right, y down, z forward). It is its own inverse.
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera-to-world matrix (4, 4) in OpenCV axes, at ``eye``, looking at ``target``.
+
+    ``up`` is the world direction that appears upwards in the image (``-y`` in camera axes);
+    it must not be parallel to the viewing direction.
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    x /= np.linalg.norm(x)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    c2w[:3, 3] = eye
+    return c2w
 
 
 @dataclass(frozen=True, eq=False)

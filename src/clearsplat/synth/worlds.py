@@ -24,12 +24,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..cameras import Camera
+from ..cameras import Camera, look_at
 from ..errors import ClearsplatError
 from . import raycast as rc
 from .textures import Texture, random_texture
 
-__all__ = ["World", "make_world", "look_at", "FAMILIES", "OCCLUSION_LEVELS"]
+__all__ = ["World", "make_world", "FAMILIES", "OCCLUSION_LEVELS"]
 
 FAMILIES = ("object", "street")
 OCCLUSION_LEVELS = ("low", "medium", "high")
@@ -175,20 +175,6 @@ def make_world(family: str, *, num_views: int = 8, seed: int = 0, height: int = 
 
 # ------------------------------------------------------------------------------------------
 # cameras
-
-
-def look_at(position, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Camera-to-world matrix (4, 4), OpenCV axes, looking from ``position`` at ``target``."""
-    p = np.asarray(position, dtype=np.float64)
-    z = np.asarray(target, dtype=np.float64) - p
-    z /= np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=np.float64))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([x, y, z], axis=1)
-    c2w[:3, 3] = p
-    return c2w
 
 
 def _intrinsics(h: int, w: int, hfov_deg: float) -> np.ndarray:
