@@ -116,10 +116,12 @@ def test_without_verification_every_proposal_is_removed(scene, extractor):
     assert res.removed.sum() >= strict.removed.sum()
 
 
-def test_incremental_and_full_verification_give_identical_output(scene, extractor):
-    cfg = FilterConfig.preset("paper", features="local")
+@pytest.mark.parametrize("preset", ["default", "paper-local"])
+def test_incremental_and_full_verification_give_identical_output(scene, extractor, preset):
+    cfg = FilterConfig.preset(preset)
     a = filter_distractors(scene, config=cfg, extractor=extractor)
     b = filter_distractors(scene, config=cfg.replace(incremental=False), extractor=extractor)
+    assert any("joint" in c.scores for c in a.candidates)      # every test ran
     assert np.array_equal(a.keep, b.keep)
     assert [c.scores for c in a.candidates] == [c.scores for c in b.candidates]
 

@@ -177,8 +177,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
     check_memory(estimate_filter_memory(n, scene.cameras))
     report = progress or (lambda stage, done, total: None)
-    extractor = extractor or get_extractor(config.features, **(
-        {"checkpoint": config.checkpoint} if config.checkpoint else {}))
+    if extractor is None:
+        # Only the DINO extractors take a checkpoint; the others ignore a global --checkpoint.
+        dino = config.features.startswith("dino") and config.checkpoint
+        extractor = get_extractor(config.features,
+                                  **({"checkpoint": config.checkpoint} if dino else {}))
     tau1 = extractor.tau1 if config.tau1 is None else config.tau1
     tau2 = extractor.tau2 if config.tau2 is None else config.tau2
     threads = config.num_threads
@@ -377,13 +380,16 @@ def _second_range_tests(scene, first, second, proposals, verifier, full, excl, o
     joint = np.unique(np.concatenate([c.expanded for c in survivors]))
     total = Partial()
     for j, pv in enumerate(verifier.views):
-        # Bases are incremental updates of R_j (or R_j^-j): only the tiles that the accepted
-        # first-range candidates touch change.
         if config.joint_base == "full":
             base_keep, start = ~removed_first, full[j]
         else:
             base_keep, start = ~(removed_first | own[j]), excl[j]
-        base = pv.rerender(start, keep=base_keep, tiles=pv.tiles_touched(removed_first))
+        if config.incremental:
+            # The score only reads the base where the joint removal can change the render:
+            # re-composite those tiles of R_j (or R_j^-j) and nothing else.
+            base = pv.rerender(start, keep=base_keep, tiles=pv.tiles_touched(joint))
+        else:
+            base = pv.render(keep=base_keep)
         (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
         total.add(p)
         report("joint", j + 1, scene.num_views)
