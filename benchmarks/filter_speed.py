@@ -56,6 +56,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "identical_output": bool(same),
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
     }
+    out["steps"] = {k: med(inc, k) for k in inc[0].timings if "." in k}
     if full:
         out["full_verification_s"] = med(full, "verification")
         out["speedup"] = out["full_verification_s"] / out["verification_s"]
@@ -103,6 +104,11 @@ def main(argv=None) -> int:
               f"{('%.2f' % full) if full else 'n/a':>13} "
               f"{('%.1fx' % r['speedup']) if full else 'n/a':>8} {r['peak_rss_gb']:>11.2f} "
               f"{str(r['identical_output']):>11}")
+    steps = list(rows[0]["steps"])
+    print("\nwhere the time goes (seconds, medians):")
+    print(f"{'step':<32}" + "".join(f"{str(r['views']) + ' views':>10}" for r in rows))
+    for k in steps:
+        print(f"{k:<32}" + "".join(f"{r['steps'].get(k, 0.0):>10.2f}" for r in rows))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
