@@ -201,6 +201,33 @@ def test_prepared_render_equals_render(world):
                 render(scene, scene.cameras[1], background=(0.5, 0.1, 0.0)))
 
 
+@pytest.mark.parametrize("which", ["random", "all", "none", "one view"])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_render_pair_equals_two_renders(world, which, threads):
+    scene, rng = world
+    n = len(scene)
+    keep = {"random": rng.uniform(size=n) < 0.5, "all": np.ones(n, bool),
+            "none": np.zeros(n, bool), "one view": np.arange(n) % 3 != 0}[which]
+    view = prepare(scene, scene.cameras[0], num_threads=threads)
+    a, b = view.render_pair(keep=keep, background=(0.2, 0.3, 0.4))
+    assert_same(a, view.render(background=(0.2, 0.3, 0.4)))
+    assert_same(b, view.render(keep=keep, background=(0.2, 0.3, 0.4)))
+    with pytest.raises(ClearsplatError, match="keep"):
+        view.render_pair(keep=None)
+    # A base that is itself a subset, and only some tiles (exact there, start elsewhere).
+    first = rng.uniform(size=n) < 0.8
+    tiles = np.array([0, 3, 7, 11], dtype=np.int32)
+    start = view.render(keep=first)
+    a, b = view.render_pair(keep=keep & first, first=first, tiles=tiles, start=start)
+    assert_same(a, start)
+    full_b = view.render(keep=keep & first)
+    assert_same(b, view.rerender(start, keep=keep & first, tiles=tiles))
+    for t in tiles:
+        r, c = divmod(int(t), view.grid[1])
+        sl = (slice(16 * r, 16 * r + 16), slice(16 * c, 16 * c + 16))
+        np.testing.assert_array_equal(b.rgb[sl], full_b.rgb[sl])
+
+
 def test_rerender_equals_full_render(world):
     scene, rng = world
     view = prepare(scene, scene.cameras[0])

@@ -103,6 +103,21 @@ def composite(splats, offsets, lists, keep, tiles, width: int, height: int, back
                     _c(background, np.float32), rgb, alpha, depth, int(num_threads))
 
 
+def composite_pair(splats, offsets, lists, keep_a, keep, tiles, width: int, height: int,
+                   background, outputs_a, outputs_b, num_threads: int) -> None:
+    """Composite ``tiles`` twice in one pass: the Gaussians in ``keep_a`` (all when None) into
+    ``outputs_a`` and those in ``keep`` into ``outputs_b`` ((rgb, alpha, depth) each, in place);
+    the masks are (V,) over the visible Gaussians."""
+    for outs in (outputs_a, outputs_b):
+        for a, shape in zip(outs, ((height, width, 3), (height, width), (height, width))):
+            if a.dtype != np.float32 or not a.flags.c_contiguous or a.shape != shape:
+                raise ValueError(f"clearsplat._render: outputs must be C-contiguous float32 {shape}")
+    _core.composite_pair(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
+                         _mask(keep_a), _mask(keep), _c(tiles, np.int32), int(width),
+                         int(height), _c(background, np.float32), *outputs_a, *outputs_b,
+                         int(num_threads))
+
+
 def composite_patches(splats, offsets, lists, rects, keep, removal_offsets, removal_ids,
                       task_offsets, task_tiles, width: int, height: int, background,
                       num_threads: int):

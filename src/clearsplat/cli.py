@@ -286,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="run the synthetic benchmark and print the paper's tables")
     b.add_argument("--families", default="object,street")
-    b.add_argument("--views", default="4,8,16", help="comma-separated view counts (default: %(default)s)")
+    b.add_argument("--views", default="4,8", help="comma-separated view counts (default: %(default)s)")
     b.add_argument("--seeds", default="0", help="comma-separated seeds (default: 0)")
     b.add_argument("--resolution", default="256x448", help="HxW (default: %(default)s)")
     b.add_argument("--configs", help="comma-separated presets to compare, e.g. default,paper-local")

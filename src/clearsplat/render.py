@@ -317,6 +317,52 @@ class PreparedView:
                           self._num_threads)
         return out
 
+    def render_pair(self, *, keep, first=None, tiles=None, start: RenderResult | None = None,
+                    background=(0.0, 0.0, 0.0)) -> tuple[RenderResult, RenderResult]:
+        """Two renders in one pass over the tile lists: ``first`` (all Gaussians when None) and
+        ``keep``.
+
+        Equal, bit for bit, to ``(self.render(keep=first), self.render(keep=keep))`` and
+        cheaper: each Gaussian's footprint is evaluated once for both (the filter's R_i and
+        R_i^-i, or a base and the base without a removal).
+
+        Parameters
+        ----------
+        keep : (N,) bool
+        first : (N,) bool, optional
+        tiles : int array of tile ids, optional
+            Composite only these tiles; the other pixels of both outputs hold ``start``'s
+            values (zeros without ``start``). For incremental use: the result is exact only in
+            ``tiles``.
+        start : RenderResult, optional
+        background : 3 floats
+
+        Returns
+        -------
+        (RenderResult, RenderResult)
+        """
+        keep_v = self._keep(keep)
+        if keep_v is None:
+            raise ClearsplatError("expected an (N,) bool mask", field="keep")
+        first_v = self._keep(first, "first")
+        bg = _check_background(background)
+        tiles = (np.arange(self.num_tiles, dtype=np.int32) if tiles is None
+                 else self._check_tiles(tiles))
+        h, w = self.camera.height, self.camera.width
+
+        def outputs():
+            if start is not None:
+                base = self._check_result(start)
+                return RenderResult(*(np.array(a, dtype=np.float32, order="C", copy=True)
+                                      for a in base))
+            return RenderResult(np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
+                                np.zeros((h, w), np.float32))
+
+        a, b = outputs(), outputs()
+        _render.composite_pair(self._splats, self._offsets, self._lists, first_v, keep_v, tiles,
+                               w, h, bg, a, b, self._num_threads)
+        return a, b
+
     def tiles_touched(self, gaussians) -> np.ndarray:
         """Tiles whose lists hold any of ``gaussians``: the only tiles their removal can change.
 

@@ -124,6 +124,25 @@ void composite(In<float> splats, In<int64_t> offsets, In<int32_t> lists, In<uint
                         threads(num_threads));
 }
 
+void composite_pair(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
+                    In<uint8_t> keep_a, In<uint8_t> keep, In<int32_t> tiles,
+                    int width, int height, In<float> background, Out<float> rgb_a,
+                    Out<float> alpha_a, Out<float> depth_a, Out<float> rgb_b, Out<float> alpha_b,
+                    Out<float> depth_b, int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    const int64_t px = int64_t(width) * height;
+    require(int64_t(keep.size()) == v.num, "keep size");
+    require(int64_t(rgb_a.size()) == 3 * px && int64_t(alpha_a.size()) == px &&
+                int64_t(depth_a.size()) == px && int64_t(rgb_b.size()) == 3 * px &&
+                int64_t(alpha_b.size()) == px && int64_t(depth_b.size()) == px &&
+                background.size() == 3, "output sizes");
+    nb::gil_scoped_release release;
+    cs::composite_image_pair(v, keep_of(keep_a, v.num), keep.data(), tiles.data(),
+                             int64_t(tiles.size()), background.data(), rgb_a.data(), alpha_a.data(),
+                             depth_a.data(), rgb_b.data(), alpha_b.data(), depth_b.data(),
+                             threads(num_threads));
+}
+
 void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                        In<uint16_t> rects, In<uint8_t> keep, In<int64_t> removal_offsets,
                        In<int32_t> removal_ids, In<int64_t> task_offsets, In<int32_t> task_tiles,
@@ -175,6 +194,10 @@ NB_MODULE(_core, m) {
     m.def("composite", &composite, "splats"_a, "offsets"_a, "lists"_a, "keep"_a, "tiles"_a,
           "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
           "Composite the given tiles into full-size outputs (in place).");
+    m.def("composite_pair", &composite_pair, "splats"_a, "offsets"_a, "lists"_a, "keep_a"_a,
+          "keep"_a, "tiles"_a, "width"_a, "height"_a, "background"_a, "rgb_a"_a, "alpha_a"_a, "depth_a"_a, "rgb_b"_a,
+          "alpha_b"_a, "depth_b"_a, "num_threads"_a,
+          "Composite the tiles twice in one pass: the Gaussians kept by keep_a (a), by keep (b).");
     m.def("composite_patches", &composite_patches, "splats"_a, "offsets"_a, "lists"_a, "rects"_a,
           "keep"_a, "removal_offsets"_a, "removal_ids"_a, "task_offsets"_a, "task_tiles"_a,
           "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,

@@ -51,6 +51,32 @@ struct TileState {
     }
 };
 
+// Adds one Gaussian's contribution to the `active` lanes of pixels [p, p + 8) of `s`, the
+// 3DGS rule: where T would fall below 1e-4 the pixel stops without adding; elsewhere
+// C += c * alpha * T, D += z * alpha * T, T *= 1 - alpha.
+__attribute__((always_inline)) inline void accumulate(TileState& s, int p, i8 done, i8 active,
+                                                      f8 alpha, const Splat& gs, int32_t id,
+                                                      std::vector<Entry>* record) {
+    const f8 t = load(s.T + p);
+    const f8 test_t = t * (1.0f - alpha);
+    const i8 stop = active & (test_t < kMinTransmittance);
+    const i8 add = active & ~stop;
+    const f8 weight = alpha * t;
+    const f8 zero = splat(0.0f);
+    store(s.T + p, select(add, test_t, t));
+    store(s.r + p, load(s.r + p) + select(add, gs.rgb[0] * weight, zero));
+    store(s.g + p, load(s.g + p) + select(add, gs.rgb[1] * weight, zero));
+    store(s.b + p, load(s.b + p) + select(add, gs.rgb[2] * weight, zero));
+    store(s.d + p, load(s.d + p) + select(add, gs.depth * weight, zero));
+    if (any(stop)) {
+        store(s.done + p, done | stop);
+        s.remaining -= count(stop);
+    }
+    if (record)
+        for (int l = 0; l < 8; ++l)
+            if (add[l]) record->push_back(Entry{p + l, id, weight[l]});
+}
+
 // Composites one tile's list into `s`, skipping ids with keep[id] == 0 and the ascending ids
 // in `removed`; appends every added contribution to `record` when given.
 //
@@ -92,24 +118,51 @@ void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int3
                 alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
                 active &= alpha >= kMinAlpha;
                 if (!any(active)) continue;
-                const f8 t = load(s.T + p);
-                const f8 test_t = t * (1.0f - alpha);
-                const i8 stop = active & (test_t < kMinTransmittance);
-                const i8 add = active & ~stop;
-                const f8 weight = alpha * t;
-                const f8 zero = splat(0.0f);
-                store(s.T + p, select(add, test_t, t));
-                store(s.r + p, load(s.r + p) + select(add, gs.rgb[0] * weight, zero));
-                store(s.g + p, load(s.g + p) + select(add, gs.rgb[1] * weight, zero));
-                store(s.b + p, load(s.b + p) + select(add, gs.rgb[2] * weight, zero));
-                store(s.d + p, load(s.d + p) + select(add, gs.depth * weight, zero));
-                if (any(stop)) {
-                    store(s.done + p, done | stop);
-                    s.remaining -= count(stop);
-                }
-                if (record)
-                    for (int l = 0; l < 8; ++l)
-                        if (add[l]) record->push_back(Entry{p + l, id, weight[l]});
+                accumulate(s, p, done, active, alpha, gs, id, record);
+            }
+        }
+    }
+}
+
+// The tile restricted to keep_a (all when null) into `a` and to keep_b into `b`, in one pass
+// over its list: the per-lane alpha is computed once and each state is updated exactly as
+// composite_tile would update it alone, so both equal their separate renders bit for bit.
+CS_TARGET_CLONES
+void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
+                         const uint8_t* keep_b, TileState& a, TileState& b) {
+    const int32_t* list = v.tile_lists + v.tile_offsets[tile];
+    const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
+    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
+    const i8 all_done = iota == iota;
+    for (int64_t k = 0; k < len && (a.remaining > 0 || b.remaining > 0); ++k) {
+        if (k + kPrefetch < len) __builtin_prefetch(v.splats + list[k + kPrefetch]);
+        const int32_t id = list[k];
+        const bool in_a = a.remaining > 0 && (!keep_a || keep_a[id]);
+        const bool in_b = b.remaining > 0 && keep_b[id];
+        if (!in_a && !in_b) continue;
+        const Splat& gs = v.splats[id];
+        const int lx0 = std::max(int(gs.bx0) - a.x0, 0), lx1 = std::min(int(gs.bx1) - a.x0, a.w - 1);
+        const int ly0 = std::max(int(gs.by0) - a.y0, 0), ly1 = std::min(int(gs.by1) - a.y0, a.h - 1);
+        for (int ly = ly0; ly <= ly1; ++ly) {
+            const float dy = gs.v - (float(a.y0 + ly) + 0.5f);
+            for (int start = lx0; start <= lx1; start += 8) {
+                const int base = std::min(start, kTile - 8);
+                const int p = ly * kTile + base;
+                const i8 col = iota + base;
+                const i8 in_box = (col >= start) & (col <= lx1);
+                const i8 done_a = in_a ? load(a.done + p) : all_done;
+                const i8 done_b = in_b ? load(b.done + p) : all_done;
+                i8 act_a = in_box & ~done_a, act_b = in_box & ~done_b;
+                if (!any(act_a | act_b)) continue;
+                const f8 dx = gs.u - (__builtin_convertvector(col + a.x0, f8) + 0.5f);
+                const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
+                f8 alpha = gs.opacity * exp_nonpositive(power);
+                alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
+                const i8 ok = (power <= 0.0f) & (alpha >= kMinAlpha);
+                act_a &= ok;
+                act_b &= ok;
+                if (any(act_a)) accumulate(a, p, done_a, act_a, alpha, gs, id, nullptr);
+                if (any(act_b)) accumulate(b, p, done_b, act_b, alpha, gs, id, nullptr);
             }
         }
     }
@@ -145,6 +198,31 @@ void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tile
                 for (int lx = 0; lx < s.w; ++lx) {
                     const int64_t q = int64_t(s.y0 + ly) * v.width + s.x0 + lx;
                     finish_pixel(s, ly * kTile + lx, bg, rgb + 3 * q, alpha + q, depth + q);
+                }
+        }
+    }
+}
+
+void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_t* keep_b,
+                          const int32_t* tiles, int64_t num_tiles, const float bg[3],
+                          float* rgb_a, float* alpha_a, float* depth_a, float* rgb_b,
+                          float* alpha_b, float* depth_b, int num_threads) {
+    if (!tiles) num_tiles = v.num_tiles();
+#pragma omp parallel num_threads(num_threads)
+    {
+        TileState a, b;
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t j = 0; j < num_tiles; ++j) {
+            const int tile = tiles ? tiles[j] : int(j);
+            a.reset(v, tile, nullptr);
+            b.reset(v, tile, nullptr);
+            composite_tile_pair(v, tile, keep_a, keep_b, a, b);
+            for (int ly = 0; ly < a.h; ++ly)
+                for (int lx = 0; lx < a.w; ++lx) {
+                    const int64_t q = int64_t(a.y0 + ly) * v.width + a.x0 + lx;
+                    const int p = ly * kTile + lx;
+                    finish_pixel(a, p, bg, rgb_a + 3 * q, alpha_a + q, depth_a + q);
+                    finish_pixel(b, p, bg, rgb_b + 3 * q, alpha_b + q, depth_b + q);
                 }
         }
     }

@@ -97,6 +97,14 @@ void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tile
                      int64_t num_tiles, const float bg[3], float* rgb, float* alpha,
                      float* depth, int num_threads);
 
+// `tiles` (all when null) twice in one pass: the Gaussians with keep_a[id] (all when null)
+// into (rgb_a, alpha_a, depth_a) and those with keep_b[id] into (rgb_b, ...); each equals its
+// separate composite_image bit for bit.
+void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_t* keep_b,
+                          const int32_t* tiles, int64_t num_tiles, const float bg[3],
+                          float* rgb_a, float* alpha_a, float* depth_a, float* rgb_b,
+                          float* alpha_b, float* depth_b, int num_threads);
+
 // Batched incremental compositing: task j re-composites tile task_tiles[j] for the removal
 // task_removal[j], skipping that removal's ids (CSR, sorted ascending per removal).
 void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep,

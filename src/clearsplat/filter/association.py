@@ -171,17 +171,16 @@ def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex)
     w2c = np.stack([scene.cameras[j].world_to_camera for j in others]).astype(np.float32)
     pc = means @ w2c[:, :3, :3].transpose(2, 0, 1).reshape(3, -1) + w2c[:, :3, 3].reshape(-1)
     pc = pc.reshape(len(means), len(others), 3)
-    counts = []
-    for k, j in enumerate(others):
-        cam = scene.cameras[j]
-        x, y, z = pc[:, k, 0], pc[:, k, 1], pc[:, k, 2]
-        front = z > 0
-        zf = np.where(front, z, 1.0)
-        u = cam.fx * x / zf + cam.cx
-        v = cam.fy * y / zf + cam.cy
-        inside = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        counts.append((-int(inside.sum()), j))
-    counts.sort()
+    cams = [scene.cameras[j] for j in others]
+    fx, fy, cx, cy, w, h = (np.array([getattr(c, a) for c in cams], dtype=np.float32)
+                            for a in ("fx", "fy", "cx", "cy", "width", "height"))
+    x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
+    front = z > 0
+    zf = np.where(front, z, np.float32(1.0))
+    u = fx * x / zf + cx
+    v = fy * y / zf + cy
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    counts = sorted(zip((-inside.sum(axis=0)).tolist(), others))
     return [j for _, j in counts[:count]]
 
 

@@ -196,8 +196,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         pv = prepare(scene, cam, num_threads=threads)
         views.append(pv)
         lap("prepare")
-        full.append(pv.render())
-        excl.append(pv.render(keep=~own[i]))
+        r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
+        full.append(r_full)
+        excl.append(r_excl)
         lap("exclusion_renders")
         report("render", i + 1, scene.num_views)
     if not any(pv.num_visible for pv in views):
@@ -378,6 +379,8 @@ def _second_range_tests(scene, first, second, proposals, verifier, full, excl, o
     for c in first:
         removed_first[c.expanded] = True
     joint = np.unique(np.concatenate([c.expanded for c in survivors]))
+    jointly = np.zeros(n, dtype=bool)
+    jointly[joint] = True
     total = Partial()
     for j, pv in enumerate(verifier.views):
         if config.joint_base == "full":
@@ -385,12 +388,15 @@ def _second_range_tests(scene, first, second, proposals, verifier, full, excl, o
         else:
             base_keep, start = ~(removed_first | own[j]), excl[j]
         if config.incremental:
-            # The score only reads the base where the joint removal can change the render:
-            # re-composite those tiles of R_j (or R_j^-j) and nothing else.
-            base = pv.rerender(start, keep=base_keep, tiles=pv.tiles_touched(joint))
+            # The score reads only the tiles the joint removal touches: composite the base and
+            # the base without the joint removal there, in one pass.
+            tiles = pv.tiles_touched(joint)
+            base, after = pv.render_pair(first=base_keep, keep=base_keep & ~jointly,
+                                         tiles=tiles, start=start)
+            p = verifier.score_tiles(j, base, after, tiles, q[j])
         else:
             base = pv.render(keep=base_keep)
-        (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
+            (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
         total.add(p)
         report("joint", j + 1, scene.num_views)
     ok = total.score > config.min_score

@@ -122,6 +122,20 @@ class Verifier:
         self.incremental = incremental
         self.hole_alpha = float(hole_alpha)
 
+    def score_tiles(self, j: int, base: RenderResult, after: RenderResult, tiles: np.ndarray,
+                    excluded: np.ndarray) -> Partial:
+        """Score terms of ``after`` against ``base`` on view ``j``, read only in ``tiles``.
+
+        For renders that can differ only inside ``tiles`` (and are exact there); visits the
+        pixels in row-major order like the other paths, so the sums agree with them exactly.
+        """
+        flat, inside = tile_pixels(self.views[j], np.asarray(tiles))
+        idx = np.sort(flat[inside])
+        return change_weighted_terms(base.rgb.reshape(-1, 3)[idx],
+                                     after.rgb.reshape(-1, 3)[idx], self.images[j][idx],
+                                     excluded.ravel()[idx], self.epsilon,
+                                     after.alpha.reshape(-1)[idx], self.hole_alpha)
+
     def score_view(self, j: int, base_keep: np.ndarray, base: RenderResult,
                    removals: list[np.ndarray], excluded: np.ndarray) -> list[Partial]:
         """Score terms of each removal on view ``j``.
