@@ -511,3 +511,22 @@ def test_failed_save_leaves_nothing(tmp_path):
 def test_public_api():
     assert set(cio.__all__) >= {"load_scene", "save_scene", "load_cameras", "save_cameras",
                                 "read_ply", "write_ply", "read_image", "write_image"}
+
+
+@pytest.mark.parametrize("existing", ["missing", "empty folder", "folder", "file"])
+def test_swap_into_place_replaces_what_is_there(tmp_path, existing):
+    from clearsplat.io import swap_into_place
+    src = tmp_path / ".new"
+    src.mkdir()
+    (src / "a.txt").write_text("new")
+    dest = tmp_path / "out"
+    if existing == "empty folder":
+        dest.mkdir()
+    elif existing == "folder":
+        dest.mkdir()
+        (dest / "old.txt").write_text("old")
+    elif existing == "file":
+        dest.write_text("old")
+    swap_into_place(src, dest)
+    assert sorted(p.name for p in dest.iterdir()) == ["a.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]     # nothing left beside it

@@ -13,7 +13,6 @@ import contextlib
 import json
 import math
 import os
-import secrets
 import shutil
 import signal
 import sys
@@ -209,7 +208,7 @@ def _write_outputs(tmp: str, args, scene, result) -> None:
 
 def _cmd_filter(args) -> int:
     from .filter import filter_distractors
-    from .io import load_scene
+    from .io import load_scene, swap_into_place
 
     out = os.path.abspath(args.out)
     _check_out(out, args.scene, args.force, args.out)
@@ -236,20 +235,8 @@ def _cmd_filter(args) -> int:
     try:
         tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.clearsplat-", dir=parent)
         _write_outputs(tmp, args, scene, result)
-        if os.path.lexists(out):      # checked by _check_out; move aside, then swap in
-            old = os.path.join(parent, f".{os.path.basename(out)}.old-{secrets.token_hex(6)}")
-            os.rename(out, old)
-            try:
-                os.rename(tmp, out)
-            except BaseException:
-                os.rename(old, out)
-                raise
-            tmp = None
-            shutil.rmtree(old) if os.path.isdir(old) and not os.path.islink(old) \
-                else os.remove(old)
-        else:
-            os.rename(tmp, out)
-            tmp = None
+        swap_into_place(tmp, out)     # an existing --out was checked by _check_out
+        tmp = None
     except BaseException:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)

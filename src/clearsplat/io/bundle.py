@@ -515,20 +515,37 @@ def save_scene(scene: Scene, path, *, overwrite: bool = False) -> None:
         keep_pixel = (scene.pixel_id >= 0).any() or (RAW_PREFIX + "pixel_id") in g.extra
         write_ply(tmp / GAUSSIANS_FILE, g, view_id=scene.view_id,
                   pixel_id=scene.pixel_id if keep_pixel else None)
-        if nonempty:
-            old = _fresh_name(dest, "old")
-            os.rename(dest, old)
-            try:
-                os.rename(tmp, dest)
-            except BaseException:
-                os.rename(old, dest)
-                raise
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, dest)    # onto a missing or empty folder
+        swap_into_place(tmp, dest)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def swap_into_place(src, dest) -> None:
+    """Move the finished folder ``src`` to ``dest``, replacing whatever ``dest`` holds.
+
+    An existing ``dest`` (folder, file or link) is first renamed aside, then ``src`` is renamed
+    into place and the old one deleted; if the second rename fails the old ``dest`` is put back.
+    ``src`` and ``dest`` must be on the same file system (make ``src`` beside ``dest``).
+    """
+    src, dest = Path(src), Path(dest)
+    if not os.path.lexists(dest):
+        os.rename(src, dest)
+        return
+    if dest.is_dir() and not dest.is_symlink() and not any(dest.iterdir()):
+        os.replace(src, dest)           # onto an empty folder
+        return
+    old = _fresh_name(dest, "old")
+    os.rename(dest, old)
+    try:
+        os.rename(src, dest)
+    except BaseException:
+        os.rename(old, dest)
+        raise
+    if old.is_dir() and not old.is_symlink():
+        shutil.rmtree(old)
+    else:
+        os.remove(old)
 
 
 def _fresh_name(dest: Path, what: str) -> Path:
