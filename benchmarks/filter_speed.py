@@ -38,25 +38,32 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     t_recon = time.perf_counter() - t0
     extractor = get_extractor("local")
     cfg = FilterConfig()
-    inc = [filter_distractors(scene, config=cfg, extractor=extractor) for _ in range(repeats)]
-    full = [filter_distractors(scene, config=cfg.replace(incremental=False),
-                               extractor=extractor) for _ in range(full_repeats)]
-    same = all(np.array_equal(inc[0].keep, r.keep) for r in inc + full)
+
+    def run(config):
+        # Keep what is reported, not the result: a caller holds one result at a time, and
+        # holding all of them would make every run allocate fresh memory.
+        r = filter_distractors(scene, config=config, extractor=extractor)
+        return {"timings": r.timings, "keep": r.keep, "candidates": len(r.candidates),
+                "accepted": sum(c.accepted for c in r.candidates)}
+
+    inc = [run(cfg) for _ in range(repeats)]
+    full = [run(cfg.replace(incremental=False)) for _ in range(full_repeats)]
+    same = all(np.array_equal(inc[0]["keep"], r["keep"]) for r in inc + full)
 
     def med(runs, key):
-        return statistics.median(r.timings[key] for r in runs)
+        return statistics.median(r["timings"][key] for r in runs)
 
     out = {
         "views": views, "gaussians": len(scene), "family": family,
         "reconstruct_s": t_recon,
         "proposal_s": med(inc, "proposal"), "verification_s": med(inc, "verification"),
         "total_s": med(inc, "total"),
-        "candidates": len(inc[0].candidates),
-        "accepted": sum(c.accepted for c in inc[0].candidates),
+        "candidates": inc[0]["candidates"],
+        "accepted": inc[0]["accepted"],
         "identical_output": bool(same),
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
     }
-    out["steps"] = {k: med(inc, k) for k in inc[0].timings if "." in k}
+    out["steps"] = {k: med(inc, k) for k in inc[0]["timings"] if "." in k}
     if full:
         out["full_verification_s"] = med(full, "verification")
         out["speedup"] = out["full_verification_s"] / out["verification_s"]
