@@ -9,7 +9,7 @@ from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians, verification_views
 from clearsplat.metrics import removal_stats
-from clearsplat.render import render
+from clearsplat.render import prepare, render
 from clearsplat.synth.backbone import clean_reference, distractor_truth, reconstruct
 from clearsplat.synth.worlds import make_world
 
@@ -168,6 +168,9 @@ def test_association_without_pixel_id_finds_the_front_surface(world, scene):
     a = region_gaussians(scene, 1, region, index=index_aligned)
     b = region_gaussians(loose, 1, region, index=index_loose, min_weight=0.05)
     assert np.all(scene.view_id[b] == 1)
+    # Reusing the view's PreparedView (as the pipeline does) gives the same Gaussians.
+    assert np.array_equal(b, region_gaussians(loose, 1, region, index=index_loose,
+                                              prepared=prepare(loose, loose.cameras[1])))
     inter = np.intersect1d(a, b).size
     assert inter / np.union1d(a, b).size > 0.8
     # The rasterizer association only picks Gaussians that contribute inside the region.

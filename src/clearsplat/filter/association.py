@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from ..render import contributions
+from ..render import PreparedView, contributions
 from ..scene import Scene
 
 __all__ = [
@@ -54,7 +54,7 @@ class ViewIndex:
 
 
 def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: ViewIndex,
-                     min_weight: float = 0.05) -> np.ndarray:
+                     min_weight: float = 0.05, prepared: PreparedView | None = None) -> np.ndarray:
     """Gaussians of ``view`` that a pixel region maps to [C_k], sorted int64 indices.
 
     Pixel-aligned Gaussians map through their ``pixel_id`` (several per pixel allowed). The
@@ -66,6 +66,9 @@ def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: View
     ----------
     pixels : (H, W) bool
         The region in the image of ``view``.
+    prepared : PreparedView, optional
+        ``view``'s camera prepared from the whole scene; reused instead of projecting the
+        scene again for every region.
     """
     members, pid = index.members[view], index.pixels[view]
     flat = pixels.ravel()
@@ -75,7 +78,10 @@ def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: View
         return chosen
     own = np.zeros(len(scene), dtype=bool)
     own[members] = True
-    contrib = contributions(scene, scene.cameras[view], pixels, keep=own)
+    if prepared is None:
+        contrib = contributions(scene, scene.cameras[view], pixels, keep=own)
+    else:
+        contrib = prepared.contributions(pixels, keep=own)
     g = contrib.gaussian[(contrib.weight >= min_weight)]
     g = g[(scene.view_id[g] == view) & (scene.pixel_id[g] < 0)]
     return np.union1d(chosen, g).astype(np.int64)

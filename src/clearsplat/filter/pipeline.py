@@ -216,7 +216,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             single_threshold=config.single_threshold))
     def region_to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         return region_gaussians(scene, view, pixels, index=index,
-                                min_weight=config.association_min_weight)
+                                min_weight=config.association_min_weight,
+                                prepared=views[view])
 
     regions = [r for prop in proposals for r in prop.regions]
     raw = [region_to_gaussians(r.view, r.pixels) for r in regions]
