@@ -7,7 +7,7 @@ from clearsplat.filter import FilterConfig
 from clearsplat.filter.association import dilate
 from clearsplat.filter.proposal import (cell_index_map, connected_regions, patch_means,
                                         propose_view, proposal_ranges, support_condition)
-from clearsplat.filter.verify import Partial, change_weighted_terms, pooled_score
+from clearsplat.filter.verify import Partial, change_weighted_terms
 from clearsplat import ClearsplatError
 
 
@@ -113,8 +113,10 @@ def test_score_ignores_changes_below_epsilon_and_is_zero_without_weight():
     after = base + np.float32(0.0005)   # w = 0.0015 <= epsilon everywhere
     p = change_weighted_terms(base, after, image, np.zeros(3, bool), 0.002)
     assert p.den == 0 and p.score == 0.0
-    assert pooled_score([Partial(), Partial()]) == 0.0
-    assert pooled_score([Partial(1.0, 2.0), Partial(-3.0, 2.0)]) == pytest.approx(-0.5)
+    assert Partial().score == 0.0
+    pooled = Partial(1.0, 2.0)
+    pooled.add(Partial(-3.0, 2.0))          # pooled over views: sums, then the ratio
+    assert pooled.score == pytest.approx(-0.5)
 
 
 def test_dilate_is_a_disk():

@@ -276,8 +276,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             c.expanded = expand(c)
             c.accepted, c.reason = True, "accepted without verification"
     else:
-        _individual_tests(scene, candidates, proposals, verifier, full, excl, own, index,
-                          config, report)
+        q = {1: _exclusion_masks(proposals, 1), 2: _exclusion_masks(proposals, 2)}
+        _individual_tests(scene, candidates, q, verifier, full, excl, own, index, config,
+                          report)
         lap("individual")
         passed = [c for c in candidates if c.reason == "passed individual test"]
         for c in passed:
@@ -288,8 +289,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         for c in first:
             c.accepted, c.reason = True, "accepted (first range)"
         if second:
-            _second_range_tests(scene, first, second, proposals, verifier, full, excl, own,
-                                config, report)
+            _second_range_tests(scene, first, second, q[2], verifier, full, excl, own, config,
+                                report)
         lap("second_range")
     keep = np.ones(n, dtype=bool)
     for c in candidates:
@@ -317,14 +318,14 @@ def _exclusion_masks(proposals, rng: int) -> list[np.ndarray]:
     return out
 
 
-def _individual_tests(scene, candidates, proposals, verifier, full, excl, own, index, config,
-                      report):
-    """Score every candidate on its verification views; mark those with a positive score."""
+def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, config, report):
+    """Score every candidate on its verification views; mark those with a positive score.
+
+    ``q[r][j]`` is the exclusion mask of view j for candidates of range r."""
     views_of = {i: verification_views(scene, i, config.num_verify_views, index=index)
                 for i in range(scene.num_views)}
     n = len(scene)
     all_keep = np.ones(n, dtype=bool)
-    q = {1: _exclusion_masks(proposals, 1), 2: _exclusion_masks(proposals, 2)}
     totals = {c.index: Partial() for c in candidates}
     for c in candidates:
         c.verify_views = views_of[c.view]
@@ -355,10 +356,9 @@ def _individual_tests(scene, candidates, proposals, verifier, full, excl, own, i
             c.reason = "rejected by individual test"
 
 
-def _second_range_tests(scene, first, second, proposals, verifier, full, excl, own, config,
-                        report):
-    """The additional test of each second-range candidate, then their joint test."""
-    q = _exclusion_masks(proposals, 2)
+def _second_range_tests(scene, first, second, q, verifier, full, excl, own, config, report):
+    """The additional test of each second-range candidate, then their joint test; ``q[j]`` is
+    view j's exclusion mask M_j^1 | M_j^2 (and its unreliable pixels)."""
     totals = {c.index: Partial() for c in second}
     for j in range(scene.num_views):
         parts = verifier.score_view(j, ~own[j], excl[j], [c.expanded for c in second], q[j])

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..render import PreparedView, RenderResult
 
-__all__ = ["Partial", "pooled_score", "change_weighted_terms", "Verifier"]
+__all__ = ["Partial", "change_weighted_terms", "Verifier"]
 
 
 @dataclass
@@ -32,25 +32,15 @@ class Partial:
 
     num: float = 0.0
     den: float = 0.0
-    pixels: int = 0
 
     def add(self, other: "Partial") -> None:
         self.num += other.num
         self.den += other.den
-        self.pixels += other.pixels
 
     @property
     def score(self) -> float:
         """The pooled score: 0 when no pixel carries weight."""
         return self.num / self.den if self.den > 0 else 0.0
-
-
-def pooled_score(parts) -> float:
-    """Score of several :class:`Partial` pooled together."""
-    total = Partial()
-    for p in parts:
-        total.add(p)
-    return total.score
 
 
 def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: np.ndarray,
@@ -80,7 +70,7 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
         return Partial()
     w = w[valid]
     delta = np.abs(base[valid] - img[valid]).sum(-1) - np.abs(after[valid] - img[valid]).sum(-1)
-    return Partial(float(np.sum(w * delta)), float(np.sum(w)), int(valid.sum()))
+    return Partial(float(np.sum(w * delta)), float(np.sum(w)))
 
 
 def tile_pixels(view: PreparedView, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
