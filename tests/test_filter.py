@@ -184,3 +184,20 @@ def test_single_view_returns_scene_unchanged_with_warning(scene, extractor):
     with pytest.warns(UserWarning, match="single input view"):
         res = filter_distractors(one, config=FilterConfig(), extractor=extractor)
     assert res.keep.all()
+
+
+def test_report_pictures_and_page(scene, result, tmp_path):
+    from PIL import Image
+    from clearsplat.report import to_uint8, write_report
+    page = write_report(str(tmp_path), scene, result)
+    with open(page) as f:
+        html = f.read()
+    for i in range(scene.num_views):
+        for name in ("input", "exclusion", "similarity", "proposals", "accepted"):
+            assert f"view{i:03d}_{name}.png" in html
+            assert (tmp_path / f"view{i:03d}_{name}.png").exists()
+    # The exclusion picture is R_i^-i: the view rendered without its own Gaussians.
+    excl = np.asarray(Image.open(tmp_path / "view001_exclusion.png"))
+    expected = render(scene, scene.cameras[1], keep=scene.view_id != 1).rgb
+    assert np.array_equal(excl, to_uint8(expected))
+    assert f"{int(result.removed.sum())} of {len(scene)} Gaussians removed" in html

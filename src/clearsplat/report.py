@@ -48,15 +48,13 @@ def write_png(path: str, img: np.ndarray) -> None:
     Image.fromarray(to_uint8(img)).save(path)
 
 
-def write_report(out_dir: str, scene, result, *, exclusion_renders=None) -> str:
+def write_report(out_dir: str, scene, result) -> str:
     """Write the per-view pictures and ``report.html`` into ``out_dir``; return the HTML path.
 
     Parameters
     ----------
     scene : Scene
     result : FilterResult
-    exclusion_renders : list of (H, W, 3) arrays, optional
-        R_i^-i per view; rendered here when not given.
     """
     from .render import render
 
@@ -66,11 +64,9 @@ def write_report(out_dir: str, scene, result, *, exclusion_renders=None) -> str:
         i = prop.view
         img = scene.images[i]
         h, w = img.shape[:2]
-        if exclusion_renders is None:
-            keep = scene.view_id != i
-            excl = render(scene, scene.cameras[i], keep=keep).rgb
-        else:
-            excl = exclusion_renders[i]
+        excl = prop.exclusion            # R_i^-i as the filter rendered it
+        if excl is None:
+            excl = render(scene, scene.cameras[i], keep=scene.view_id != i).rgb
         sim = colormap(upsample_nearest(prop.similarity, h, w), -0.2, 1.0)
         unsupported = ~prop.support_pixels
         proposals = overlay(img * np.where(unsupported, 0.45, 1.0)[..., None],

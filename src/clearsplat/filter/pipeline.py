@@ -214,6 +214,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             i, sims[i], excl[i].alpha, full[i].depth, excl[i].depth, eta=config.eta,
             tau1=tau1, tau2=tau2, second_range=config.second_range,
             single_threshold=config.single_threshold))
+        proposals[-1].exclusion = excl[i].rgb
     def region_to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         return region_gaussians(scene, view, pixels, index=index,
                                 min_weight=config.association_min_weight,

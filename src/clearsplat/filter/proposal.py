@@ -63,6 +63,8 @@ class ViewProposal:
         Unions of the first- and second-range regions [M_i^1, M_i^2].
     unreliable : (H, W) bool or None
         Pixels that verification also leaves out (``FilterConfig.verify_mask``).
+    exclusion : (H, W, 3) float32 or None
+        The exclusion render R_i^-i (kept for the diagnostic pictures).
     """
 
     view: int
@@ -73,6 +75,7 @@ class ViewProposal:
     mask1: np.ndarray | None = None
     mask2: np.ndarray | None = None
     unreliable: np.ndarray | None = None
+    exclusion: np.ndarray | None = None
 
     @property
     def support_pixels(self) -> np.ndarray:
