@@ -158,6 +158,32 @@ def test_verification_views_are_those_seeing_most_centres():
     assert counts[3] == 0
     assert verification_views(scene, 0, 3, index=index) == expected[:3]
     assert 0 not in verification_views(scene, 0, 4, index=index)
+    # From the prepared views' projections: the same counts (nothing here is culled).
+    inside = [prepare(scene, c).centres_inside() for c in cams]
+    for j in range(1, 5):
+        assert int(inside[j][index.members[0]].sum()) == counts[j]
+    assert verification_views(scene, 0, 3, index=index, inside=inside) == expected[:3]
+    assert 0 not in verification_views(scene, 0, 4, index=index, inside=inside)
+
+
+def test_centres_inside_matches_projection_and_leaves_out_culled():
+    rng = np.random.default_rng(3)
+    n = 3000
+    cam = Camera(K=[[80.0, 0, 40], [0, 80.0, 30], [0, 0, 1]],
+                 camera_to_world=look_at((0.3, 0.1, 0), (0, 0, 5), up=(0.0, -1.0, 0.0)),
+                 width=80, height=60)
+    means = np.stack([rng.uniform(-6, 6, n), rng.uniform(-5, 5, n), rng.uniform(-2, 9, n)], 1)
+    opac = rng.uniform(0.05, 1.0, n)
+    opac[:100] = 1e-3                                      # below alpha 1/255: culled
+    g = Gaussians(means, rng.uniform(0.01, 0.2, (n, 3)), rng.normal(size=(n, 4)), opac,
+                  np.zeros((n, 1, 3)))
+    uv, z = cam.project(means)
+    expected = ((z > 0.01) & (uv[:, 0] >= 0) & (uv[:, 0] < 80) & (uv[:, 1] >= 0)
+                & (uv[:, 1] < 60) & (opac >= 1 / 255))
+    got = prepare(g, cam).centres_inside()
+    assert got.dtype == np.bool_ and got.shape == (n,)
+    assert 100 < expected.sum() < n - 100
+    assert np.array_equal(got, expected)
 
 
 def test_association_without_pixel_id_finds_the_front_surface(world, scene):

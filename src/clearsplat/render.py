@@ -231,6 +231,18 @@ class PreparedView:
             arrays.append(self._visible_id)
         return int(sum(a.nbytes for a in arrays))
 
+    def centres_inside(self) -> np.ndarray:
+        """(N,) bool: the visible Gaussians whose projected centre lies inside the image.
+
+        Culled Gaussians (behind the near plane, below alpha 1/255, off-image) are False.
+        """
+        u, v = self._splats[:, 0], self._splats[:, 1]
+        w, h = self.camera.width, self.camera.height
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        out = np.zeros(self.num_gaussians, dtype=bool)
+        out[self._index[inside]] = True
+        return out
+
     def __repr__(self) -> str:
         return (f"PreparedView({self.camera.width}x{self.camera.height}, "
                 f"{self.num_visible} of {self.num_gaussians} Gaussians visible, "
@@ -240,7 +252,8 @@ class PreparedView:
     def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
         """(V,) bool keep over the visible Gaussians, or None."""
         keep = _check_keep(keep, self.num_gaussians, field)
-        return None if keep is None else keep[self._index]
+        # np.take: about twice as fast as fancy indexing with int32 indices.
+        return None if keep is None else np.take(keep, self._index)
 
     def _ids(self, gaussians, field: str) -> np.ndarray:
         """Sorted unique visible ids (int32) of the given Gaussians (invisible ones dropped)."""
@@ -250,7 +263,7 @@ class PreparedView:
             if a.shape != (self.num_gaussians,):
                 raise ClearsplatError(f"expected a ({self.num_gaussians},) bool mask, got shape "
                                       f"{a.shape}", field=field)
-            return np.flatnonzero(a[self._index]).astype(np.int32)
+            return np.flatnonzero(np.take(a, self._index)).astype(np.int32)
         idx = _check_indices(a, self.num_gaussians, field)
         if self._visible_id is None:
             vid = np.full(self.num_gaussians, -1, dtype=np.int32)

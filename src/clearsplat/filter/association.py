@@ -163,15 +163,25 @@ def pixels_of(scene: Scene, index: ViewIndex, view: int, selected: np.ndarray) -
     return out.reshape(cam.height, cam.width)
 
 
-def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex) -> list[int]:
+def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex,
+                       inside: list | None = None) -> list[int]:
     """The ``count`` other views that see the most centres of ``view``'s Gaussians [V_i].
 
     Centres count when they have positive depth and fall inside the image; ties go to the
     lower view index; ``view`` itself is never chosen.
+
+    ``inside``, optional: per view, the (N,) bool :meth:`PreparedView.centres_inside
+    <clearsplat.render.PreparedView.centres_inside>` of its prepared view. The counts then
+    come from the projections already made (about 4x faster at 16 views) and leave out
+    the Gaussians the rasterizer culls (alpha below 1/255, closer than its near plane).
     """
     others = [j for j in range(scene.num_views) if j != view]
     if not others:
         return []
+    if inside is not None:
+        members = index.members[view]
+        counts = sorted((-int(np.count_nonzero(inside[j][members])), j) for j in others)
+        return [j for _, j in counts[:count]]
     means = scene.gaussians.means[index.members[view]]
     # All cameras in one product: (M, 3) @ (3, 3V) plus translations, in float32.
     w2c = np.stack([scene.cameras[j].world_to_camera for j in others]).astype(np.float32)

@@ -323,7 +323,9 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, co
     """Score every candidate on its verification views; mark those with a positive score.
 
     ``q[r][j]`` is the exclusion mask of view j for candidates of range r."""
-    views_of = {i: verification_views(scene, i, config.num_verify_views, index=index)
+    inside = [pv.centres_inside() for pv in verifier.views]
+    views_of = {i: verification_views(scene, i, config.num_verify_views, index=index,
+                                      inside=inside)
                 for i in range(scene.num_views)}
     n = len(scene)
     all_keep = np.ones(n, dtype=bool)
