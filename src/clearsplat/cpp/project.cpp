@@ -30,17 +30,46 @@ struct Block {
     alignas(64) int32_t bx0[kBlock], bx1[kBlock], by0[kBlock], by1[kBlock];  // alpha box
 };
 
+// Four-lane double vectors for the projection (GCC/Clang vector extensions). Each lane does
+// the IEEE operations a scalar loop would do, in the same order, so the bits do not depend on
+// the instruction set.
+typedef double d4 __attribute__((vector_size(32)));
+typedef int64_t m4 __attribute__((vector_size(32)));  // lane masks: all ones or zero
+typedef int32_t n4 __attribute__((vector_size(16)));
+
+CS_INLINE d4 dsplat(double a) { return d4{a, a, a, a}; }
+CS_INLINE d4 dload(const double* p) {
+    d4 v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+}
+CS_INLINE void dstore(double* p, d4 v) { std::memcpy(p, &v, sizeof v); }
+CS_INLINE void nstore(int32_t* p, n4 v) { std::memcpy(p, &v, sizeof v); }
+CS_INLINE d4 dsel(m4 m, d4 a, d4 b) { return m ? a : b; }
+// std::max(a, b) and std::min(a, b), lane by lane (same NaN behaviour).
+CS_INLINE d4 dmax(d4 a, d4 b) { return dsel(a < b, b, a); }
+CS_INLINE d4 dmin(d4 a, d4 b) { return dsel(b < a, b, a); }
+CS_INLINE d4 dsqrt(d4 a) {
+    d4 r;
+    for (int l = 0; l < 4; ++l) r[l] = std::sqrt(a[l]);
+    return r;
+}
+// Whole doubles in int32 range: truncation toward zero.
+CS_INLINE n4 to_int(d4 a) { return __builtin_convertvector(a, n4); }
+CS_INLINE d4 trunc_small(d4 a) { return __builtin_convertvector(to_int(a), d4); }
+
 // Pixel index range [lo, hi] (inclusive) whose centres (i + 0.5) lie within [c - e, c + e],
 // clamped to [0, last]: lo = ceil(c - e - 0.5), hi = floor(c + e - 0.5), as whole doubles.
-// Returns false when the range is empty or not finite. Branch-free (doubles and masks only).
-inline bool centre_range(double c, double e, double last, double& lo, double& hi) {
-    double a = c - e - 0.5, b = c + e - 0.5;
-    const bool in = (b >= 0.0) & (a <= last);  // false for NaN
-    a = in ? std::min(std::max(a, 0.0), last) : 0.0;
-    b = in ? std::min(std::max(b, 0.0), last) : 0.0;
-    const double fa = double(int32_t(a));  // a, b >= 0: truncation is floor
-    lo = fa < a ? fa + 1.0 : fa;
-    hi = double(int32_t(b));
+// The mask is false where the range is empty or not finite.
+CS_INLINE m4 centre_range(d4 c, d4 e, d4 last, d4& lo, d4& hi) {
+    const d4 zero = dsplat(0.0);
+    d4 a = c - e - 0.5, b = c + e - 0.5;
+    const m4 in = (b >= 0.0) & (a <= last);  // false for NaN
+    a = dsel(in, dmin(dmax(a, zero), last), zero);
+    b = dsel(in, dmin(dmax(b, zero), last), zero);
+    const d4 fa = trunc_small(a);  // a, b >= 0: truncation is floor
+    lo = dsel(fa < a, fa + 1.0, fa);
+    hi = trunc_small(b);
     return in & (lo <= hi);
 }
 
@@ -84,14 +113,14 @@ CS_TARGET_CLONES
 void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, int cnt,
                    Block& b) {
     box_radius2(in.opacities + i0, cnt, b.e2);
-    // Locals (not struct fields) so that the compiler sees no aliasing with the stores to b.
-    double V[12];
-    for (int k = 0; k < 12; ++k) V[k] = p.view[k];
-    const double fx = p.fx, fy = p.fy, cx = p.cx, cy = p.cy, near_plane = p.near_plane;
-    const double last_x = double(p.width - 1), last_y = double(p.height - 1);
-    const double limx = 1.3 * double(p.width) / (2.0 * fx);
-    const double limy = 1.3 * double(p.height) / (2.0 * fy);
-    // Transpose the inputs to contiguous lanes first: strided loads stop the vectoriser.
+    const double* V = p.view;
+    const double fx = p.fx, fy = p.fy, cx = p.cx, cy = p.cy;
+    const d4 near_plane = dsplat(p.near_plane);
+    const d4 last_x = dsplat(double(p.width - 1)), last_y = dsplat(double(p.height - 1));
+    const d4 limx = dsplat(1.3 * double(p.width) / (2.0 * fx));
+    const d4 limy = dsplat(1.3 * double(p.height) / (2.0 * fy));
+    const d4 zero = dsplat(0.0), one = dsplat(1.0);
+    // Transpose the inputs to contiguous lanes first (zeros past cnt: those lanes are ignored).
     alignas(64) double in_m[3][kBlock], in_q[4][kBlock], in_s[3][kBlock], in_o[kBlock];
     for (int j = 0; j < cnt; ++j) {
         const int64_t i = i0 + j;
@@ -100,89 +129,95 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
         for (int k = 0; k < 3; ++k) in_s[k][j] = in.scales[3 * i + k];
         in_o[j] = in.opacities[i];
     }
-#pragma omp simd
-    for (int j = 0; j < cnt; ++j) {
-        const double mx = in_m[0][j], my = in_m[1][j], mz = in_m[2][j];
-        const double tz = V[8] * mx + V[9] * my + V[10] * mz + V[11];
-        const double tx = V[0] * mx + V[1] * my + V[2] * mz + V[3];
-        const double ty = V[4] * mx + V[5] * my + V[6] * mz + V[7];
-        const double opacity = in_o[j];
+    const int padded = (cnt + 3) / 4 * 4;
+    for (int j = cnt; j < padded; ++j) {
+        for (int k = 0; k < 3; ++k) in_m[k][j] = in_s[k][j] = 0.0;
+        for (int k = 0; k < 4; ++k) in_q[k][j] = 0.0;
+        in_o[j] = b.e2[j] = 0.0;
+    }
+    for (int j = 0; j < padded; j += 4) {
+        const d4 mx = dload(in_m[0] + j), my = dload(in_m[1] + j), mz = dload(in_m[2] + j);
+        const d4 tz = V[8] * mx + V[9] * my + V[10] * mz + V[11];
+        const d4 tx = V[0] * mx + V[1] * my + V[2] * mz + V[3];
+        const d4 ty = V[4] * mx + V[5] * my + V[6] * mz + V[7];
+        const d4 opacity = dload(in_o + j);
         // alpha = min(0.99, o * exp(power)) <= o, so o < 1/255 never contributes.
-        bool ok = (tz >= near_plane) & (opacity >= double(kMinAlpha)) & (opacity < 1e30);
+        m4 ok = (tz >= near_plane) & (opacity >= double(kMinAlpha)) & (opacity < 1e30);
 
         // M = R S with R from the quaternion (w, x, y, z), normalised via 2 / |q|^2.
-        const double qw = in_q[0][j], qx = in_q[1][j], qy = in_q[2][j], qz = in_q[3][j];
-        const double qn2 = qw * qw + qx * qx + qy * qy + qz * qz;
+        const d4 qw = dload(in_q[0] + j), qx = dload(in_q[1] + j);
+        const d4 qy = dload(in_q[2] + j), qz = dload(in_q[3] + j);
+        const d4 qn2 = qw * qw + qx * qx + qy * qy + qz * qz;
         ok &= (qn2 > 0.0) & (qn2 < 1e300);
-        const double k2 = 2.0 / qn2;  // culled lanes may hold inf; they are masked out
-        const double R00 = 1 - k2 * (qy * qy + qz * qz), R01 = k2 * (qx * qy - qw * qz);
-        const double R02 = k2 * (qx * qz + qw * qy), R10 = k2 * (qx * qy + qw * qz);
-        const double R11 = 1 - k2 * (qx * qx + qz * qz), R12 = k2 * (qy * qz - qw * qx);
-        const double R20 = k2 * (qx * qz - qw * qy), R21 = k2 * (qy * qz + qw * qx);
-        const double R22 = 1 - k2 * (qx * qx + qy * qy);
-        const double s0 = in_s[0][j], s1 = in_s[1][j], s2 = in_s[2][j];
+        const d4 k2 = 2.0 / qn2;  // culled lanes may hold inf; they are masked out
+        const d4 R00 = 1 - k2 * (qy * qy + qz * qz), R01 = k2 * (qx * qy - qw * qz);
+        const d4 R02 = k2 * (qx * qz + qw * qy), R10 = k2 * (qx * qy + qw * qz);
+        const d4 R11 = 1 - k2 * (qx * qx + qz * qz), R12 = k2 * (qy * qz - qw * qx);
+        const d4 R20 = k2 * (qx * qz - qw * qy), R21 = k2 * (qy * qz + qw * qx);
+        const d4 R22 = 1 - k2 * (qx * qx + qy * qy);
+        const d4 s0 = dload(in_s[0] + j), s1 = dload(in_s[1] + j), s2 = dload(in_s[2] + j);
 
         // Perspective Jacobian with x/z, y/z clamped to 1.3 times the half field of view.
-        const double iz = 1.0 / tz;
-        const double xz = std::min(std::max(tx * iz, -limx), limx);
-        const double yz = std::min(std::max(ty * iz, -limy), limy);
-        const double j00 = fx * iz, j02 = -fx * xz * iz;
-        const double j11 = fy * iz, j12 = -fy * yz * iz;
+        const d4 iz = 1.0 / tz;
+        const d4 xz = dmin(dmax(tx * iz, -limx), limx);
+        const d4 yz = dmin(dmax(ty * iz, -limy), limy);
+        const d4 j00 = fx * iz, j02 = -fx * xz * iz;
+        const d4 j11 = fy * iz, j12 = -fy * yz * iz;
         // Sigma2D = (J W M)(J W M)^T + 0.3 I, with Sigma = M M^T; A, B: rows of J W.
-        const double A0 = j00 * V[0] + j02 * V[8], A1 = j00 * V[1] + j02 * V[9];
-        const double A2 = j00 * V[2] + j02 * V[10];
-        const double B0 = j11 * V[4] + j12 * V[8], B1 = j11 * V[5] + j12 * V[9];
-        const double B2 = j11 * V[6] + j12 * V[10];
-        const double AM0 = (A0 * R00 + A1 * R10 + A2 * R20) * s0;
-        const double AM1 = (A0 * R01 + A1 * R11 + A2 * R21) * s1;
-        const double AM2 = (A0 * R02 + A1 * R12 + A2 * R22) * s2;
-        const double BM0 = (B0 * R00 + B1 * R10 + B2 * R20) * s0;
-        const double BM1 = (B0 * R01 + B1 * R11 + B2 * R21) * s1;
-        const double BM2 = (B0 * R02 + B1 * R12 + B2 * R22) * s2;
-        const double ca = AM0 * AM0 + AM1 * AM1 + AM2 * AM2 + 0.3;
-        const double cb = AM0 * BM0 + AM1 * BM1 + AM2 * BM2;
-        const double cc = BM0 * BM0 + BM1 * BM1 + BM2 * BM2 + 0.3;
-        const double det = ca * cc - cb * cb;
+        const d4 A0 = j00 * V[0] + j02 * V[8], A1 = j00 * V[1] + j02 * V[9];
+        const d4 A2 = j00 * V[2] + j02 * V[10];
+        const d4 B0 = j11 * V[4] + j12 * V[8], B1 = j11 * V[5] + j12 * V[9];
+        const d4 B2 = j11 * V[6] + j12 * V[10];
+        const d4 AM0 = (A0 * R00 + A1 * R10 + A2 * R20) * s0;
+        const d4 AM1 = (A0 * R01 + A1 * R11 + A2 * R21) * s1;
+        const d4 AM2 = (A0 * R02 + A1 * R12 + A2 * R22) * s2;
+        const d4 BM0 = (B0 * R00 + B1 * R10 + B2 * R20) * s0;
+        const d4 BM1 = (B0 * R01 + B1 * R11 + B2 * R21) * s1;
+        const d4 BM2 = (B0 * R02 + B1 * R12 + B2 * R22) * s2;
+        const d4 ca = AM0 * AM0 + AM1 * AM1 + AM2 * AM2 + 0.3;
+        const d4 cb = AM0 * BM0 + AM1 * BM1 + AM2 * BM2;
+        const d4 cc = BM0 * BM0 + BM1 * BM1 + BM2 * BM2 + 0.3;
+        const d4 det = ca * cc - cb * cb;
         ok &= (det > 0.0) & (det < 1e300);
-        const double mid = 0.5 * (ca + cc);
-        const double lambda = mid + std::sqrt(std::max(0.1, mid * mid - det));
-        double r3 = 3.0 * std::sqrt(lambda);
+        const d4 mid = 0.5 * (ca + cc);
+        const d4 lambda = mid + dsqrt(dmax(dsplat(0.1), mid * mid - det));
+        d4 r3 = 3.0 * dsqrt(lambda);
         ok &= r3 < 1e9;
-        r3 = ok ? r3 : 0.0;
-        double radius = double(int32_t(r3));  // ceil(3 sqrt(lambda))
-        radius += radius < r3 ? 1.0 : 0.0;
-        const double u = fx * tx * iz + cx, v = fy * ty * iz + cy;
+        r3 = dsel(ok, r3, zero);
+        d4 radius = trunc_small(r3);  // ceil(3 sqrt(lambda))
+        radius += dsel(radius < r3, one, zero);
+        const d4 u = fx * tx * iz + cx, v = fy * ty * iz + cy;
 
         // Pixels (and so tiles) with a centre within the radius, per axis.
-        double c0, c1, r0, r1, bx0, bx1, by0, by1;
+        d4 c0, c1, r0, r1, bx0, bx1, by0, by1;
         ok &= centre_range(u, radius, last_x, c0, c1);
         ok &= centre_range(v, radius, last_y, r0, r1);
         // Box where alpha can reach 1/255: d^T Sigma2D^-1 d >= dx^2 / Sigma2D_xx, so
         // |dx| <= sqrt(2 ln(255 o) Sigma2D_xx). Padded against float rounding in compositing.
-        const double e2 = b.e2[j];
-        const double ex = std::sqrt(e2 * ca) * (1.0 + 1e-3) + 1e-3;
-        const double ey = std::sqrt(e2 * cc) * (1.0 + 1e-3) + 1e-3;
+        const d4 e2 = dload(b.e2 + j);
+        const d4 ex = dsqrt(e2 * ca) * (1.0 + 1e-3) + 1e-3;
+        const d4 ey = dsqrt(e2 * cc) * (1.0 + 1e-3) + 1e-3;
         ok &= centre_range(u, ex, last_x, bx0, bx1);
         ok &= centre_range(v, ey, last_y, by0, by1);
         // Tiles outside the box see alpha < 1/255 everywhere: leaving them out changes nothing.
-        const double x0 = std::max(c0, bx0), x1 = std::min(c1, bx1);
-        const double y0 = std::max(r0, by0), y1 = std::min(r1, by1);
+        const d4 x0 = dmax(c0, bx0), x1 = dmin(c1, bx1);
+        const d4 y0 = dmax(r0, by0), y1 = dmin(r1, by1);
         ok &= (x0 <= x1) & (y0 <= y1);
-        b.x0[j] = int32_t(x0);
-        b.x1[j] = int32_t(x1);
-        b.y0[j] = int32_t(y0);
-        b.y1[j] = int32_t(y1);
-        b.bx0[j] = int32_t(bx0);
-        b.bx1[j] = int32_t(bx1);
-        b.by0[j] = int32_t(by0);
-        b.by1[j] = int32_t(by1);
-        b.ok[j] = ok ? 1.0 : 0.0;
-        b.u[j] = u;
-        b.v[j] = v;
-        b.ca[j] = ca;
-        b.cb[j] = cb;
-        b.cc[j] = cc;
-        b.tz[j] = tz;
+        nstore(b.x0 + j, to_int(x0));
+        nstore(b.x1 + j, to_int(x1));
+        nstore(b.y0 + j, to_int(y0));
+        nstore(b.y1 + j, to_int(y1));
+        nstore(b.bx0 + j, to_int(bx0));
+        nstore(b.bx1 + j, to_int(bx1));
+        nstore(b.by0 + j, to_int(by0));
+        nstore(b.by1 + j, to_int(by1));
+        dstore(b.ok + j, dsel(ok, one, zero));
+        dstore(b.u + j, u);
+        dstore(b.v + j, v);
+        dstore(b.ca + j, ca);
+        dstore(b.cb + j, cb);
+        dstore(b.cc + j, cc);
+        dstore(b.tz + j, tz);
     }
 }
 
