@@ -301,6 +301,40 @@ def test_rerender_tiles_equal_full_renders(world):
         np.testing.assert_array_equal(patch.rgb, view.gather(view.render(keep=k).rgb, given[0]))
 
 
+def test_rerender_tiles_from_base_equal_full_renders(world):
+    # With the base render, only the pixels inside the removed Gaussians' boxes are composited;
+    # the patches must still equal full renders bit for bit.
+    scene, rng = world
+    view = prepare(scene, scene.cameras[0])
+    n = len(scene)
+    bg = (0.3, 0.1, 0.7)
+    keep = rng.uniform(size=n) < 0.9
+    base = view.render(keep=keep, background=bg)
+    centre = scene.gaussians.means[view.visible[view.num_visible // 2]]
+    near = np.argsort(np.linalg.norm(scene.gaussians.means - centre, axis=1))
+    removals = [np.flatnonzero(rng.uniform(size=n) < p) for p in (0.0, 0.002, 0.05, 0.3)]
+    removals += [near[:40],                                  # a clump: part of a few tiles
+                 np.flatnonzero(~keep)[:50],                 # already gone: nothing changes
+                 np.array([near[0]])]                        # a single Gaussian
+    with_base = view.rerender_tiles(keep=keep, removals=removals, background=bg, base=base)
+    without = view.rerender_tiles(keep=keep, removals=removals, background=bg)
+    for removal, p, q in zip(removals, with_base, without):
+        k = keep.copy()
+        k[removal] = False
+        full = view.render(keep=k, background=bg)
+        for a, b, f in zip(p[1:], q[1:], full):
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(a, view.gather(f, p.tiles))
+    assert 0 < with_base[4].tiles.size < view.num_tiles // 2
+    # Explicit tiles without any removed Gaussian: copied from the base.
+    tiles = [np.arange(view.num_tiles)]
+    (patch,) = view.rerender_tiles(keep=keep, removals=[np.array([], int)], tiles_list=tiles,
+                                   background=bg, base=base)
+    np.testing.assert_array_equal(patch.rgb, view.gather(base.rgb, tiles[0]))
+    with pytest.raises(ClearsplatError, match="RenderResult"):
+        view.rerender_tiles(keep=keep, removals=removals[:1], base=base.rgb)
+
+
 def test_render_batch_equals_renders(world):
     scene, rng = world
     keeps = [None, rng.uniform(size=len(scene)) < 0.5]

@@ -120,9 +120,19 @@ def composite_pair(splats, offsets, lists, keep_a, keep, tiles, width: int, heig
 
 def composite_patches(splats, offsets, lists, rects, keep, removal_offsets, removal_ids,
                       task_offsets, task_tiles, width: int, height: int, background,
-                      num_threads: int):
-    """Re-composite (removal, tile) tasks; returns patches (T, 16, 16, 3), (T, 16, 16) x 2."""
+                      num_threads: int, base=None):
+    """Re-composite (removal, tile) tasks; returns patches (T, 16, 16, 3), (T, 16, 16) x 2.
+
+    ``base``: None or (rgb (H, W, 3), alpha (H, W), depth (H, W)), the render of ``keep``;
+    pixels no removed Gaussian reaches are then copied from it instead of composited."""
     task_tiles = _c(task_tiles, np.int32)
+    if base is None:
+        base = (np.empty(0, np.float32),) * 3
+    else:
+        base = (_c(base[0], np.float32), _c(base[1], np.float32), _c(base[2], np.float32))
+        _expect(base[0], (height, width, 3), "base rgb")
+        _expect(base[1], (height, width), "base alpha")
+        _expect(base[2], (height, width), "base depth")
     t = task_tiles.shape[0]
     rgb = np.empty((t, TILE, TILE, 3), dtype=np.float32)
     alpha = np.empty((t, TILE, TILE), dtype=np.float32)
@@ -130,8 +140,8 @@ def composite_patches(splats, offsets, lists, rects, keep, removal_offsets, remo
     _core.composite_patches(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
                             _c(rects, np.uint16), _mask(keep), _c(removal_offsets, np.int64),
                             _c(removal_ids, np.int32), _c(task_offsets, np.int64), task_tiles,
-                            int(width), int(height), _c(background, np.float32), rgb, alpha,
-                            depth, int(num_threads))
+                            int(width), int(height), _c(background, np.float32), *base, rgb,
+                            alpha, depth, int(num_threads))
     return rgb, alpha, depth
 
 

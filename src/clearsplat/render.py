@@ -422,7 +422,8 @@ class PreparedView:
         return out
 
     def rerender_tiles(self, *, keep, removals: Sequence, tiles_list: Sequence | None = None,
-                       background=(0.0, 0.0, 0.0)) -> list[TilePatch]:
+                       background=(0.0, 0.0, 0.0), base: RenderResult | None = None
+                       ) -> list[TilePatch]:
         """Batched exact incremental renders, one per removal, of only the tiles it changes.
 
         For removal ``r`` (Gaussian indices dropped on top of ``~keep``), the tiles
@@ -437,6 +438,13 @@ class PreparedView:
         tiles_list : sequence of int arrays, optional
             Tiles to re-composite per removal instead of the touched ones.
         background : 3 floats
+        base : RenderResult, optional
+            This view's render of ``keep`` with ``background`` (for example from
+            :meth:`render`). Within a tile, only the pixels inside the pixel boxes of the
+            removed Gaussians are then composited and the others copied from ``base``: the
+            same result, since compositing never visits a Gaussian outside its box, and much
+            less work for removals that cover part of a tile. A ``base`` that is not that
+            render gives wrong patches.
 
         Returns
         -------
@@ -462,10 +470,16 @@ class PreparedView:
             task_offsets = np.zeros(len(sets) + 1, dtype=np.int64)
             task_offsets[1:] = np.cumsum([s.size for s in sets])
             task_tiles = np.concatenate(sets) if sets else np.empty(0, np.int32)
+        if base is not None:
+            h, w = self.camera.height, self.camera.width
+            if not isinstance(base, RenderResult) or base.rgb.shape != (h, w, 3):
+                raise ClearsplatError(f"expected a RenderResult of this view ({h}x{w})",
+                                      field="base")
+            base = (base.rgb, base.alpha, base.depth)
         rgb, alpha, depth = _render.composite_patches(
             self._splats, self._offsets, self._lists, self._rects, keep_v, rem_offsets, rem_ids,
             task_offsets, task_tiles, self.camera.width, self.camera.height, bg,
-            self._num_threads)
+            self._num_threads, base=base)
         return [TilePatch(task_tiles[a:b], rgb[a:b], alpha[a:b], depth[a:b])
                 for a, b in zip(task_offsets[:-1], task_offsets[1:])]
 

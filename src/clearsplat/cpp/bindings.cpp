@@ -146,9 +146,15 @@ void composite_pair(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
 void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                        In<uint16_t> rects, In<uint8_t> keep, In<int64_t> removal_offsets,
                        In<int32_t> removal_ids, In<int64_t> task_offsets, In<int32_t> task_tiles,
-                       int width, int height, In<float> background, Out<float> rgb,
+                       int width, int height, In<float> background, In<float> base_rgb,
+                       In<float> base_alpha, In<float> base_depth, Out<float> rgb,
                        Out<float> alpha, Out<float> depth, int num_threads) {
     const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    const int64_t pixels = int64_t(width) * height;
+    const bool with_base = base_rgb.size() > 0;
+    require(!with_base || (int64_t(base_rgb.size()) == 3 * pixels &&
+                           int64_t(base_alpha.size()) == pixels &&
+                           int64_t(base_depth.size()) == pixels), "base sizes");
     const int64_t removals = int64_t(removal_offsets.size()) - 1;
     require(removals >= 0 && int64_t(task_offsets.size()) == removals + 1, "removal offsets");
     const int64_t tasks = task_offsets.data()[removals];
@@ -160,7 +166,10 @@ void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
     nb::gil_scoped_release release;
     cs::composite_patches(v, reinterpret_cast<const cs::Rect*>(rects.data()), keep_of(keep, v.num),
                           removal_offsets.data(), removal_ids.data(), removals, task_offsets.data(),
-                          task_tiles.data(), background.data(), rgb.data(), alpha.data(),
+                          task_tiles.data(), background.data(),
+                          with_base ? base_rgb.data() : nullptr,
+                          with_base ? base_alpha.data() : nullptr,
+                          with_base ? base_depth.data() : nullptr, rgb.data(), alpha.data(),
                           depth.data(), threads(num_threads));
 }
 
@@ -200,8 +209,10 @@ NB_MODULE(_core, m) {
           "Composite the tiles twice in one pass: the Gaussians kept by keep_a (a), by keep (b).");
     m.def("composite_patches", &composite_patches, "splats"_a, "offsets"_a, "lists"_a, "rects"_a,
           "keep"_a, "removal_offsets"_a, "removal_ids"_a, "task_offsets"_a, "task_tiles"_a,
-          "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
-          "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place).");
+          "width"_a, "height"_a, "background"_a, "base_rgb"_a, "base_alpha"_a, "base_depth"_a,
+          "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
+          "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place); "
+          "with a base render (empty arrays: none) only the pixels the removal can change.");
     m.def("contributions", &contributions, "splats"_a, "offsets"_a, "lists"_a, "keep"_a,
           "mask"_a, "width"_a, "height"_a, "num_threads"_a,
           "Every added (pixel, id, weight) at the masked pixels.");

@@ -40,7 +40,8 @@ struct TileState {
     int x0, y0, w, h;  // tile origin in pixels and its size inside the image
 
     // `mask` (H, W) or null: pixels outside the mask (and outside the image) start done.
-    void reset(const ViewData& v, int tile, const uint8_t* mask) {
+    // `local` (16 x 16, the tile's pixels) or null: the same, for a mask of the tile only.
+    void reset(const ViewData& v, int tile, const uint8_t* mask, const uint8_t* local = nullptr) {
         x0 = (tile % v.grid_w) * kTile;
         y0 = (tile / v.grid_w) * kTile;
         w = std::min(kTile, v.width - x0);
@@ -50,6 +51,7 @@ struct TileState {
             const int lx = p % kTile, ly = p / kTile;
             bool active = lx < w && ly < h;
             if (active && mask) active = mask[int64_t(y0 + ly) * v.width + x0 + lx] != 0;
+            if (active && local) active = local[p] != 0;
             T[p] = 1.0f;
             r[p] = g[p] = b[p] = d[p] = 0.0f;
             done[p] = active ? 0 : -1;
@@ -238,7 +240,8 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
 void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep,
                        const int64_t* removal_offsets, const int32_t* removal_ids,
                        int64_t num_removals, const int64_t* task_offsets,
-                       const int32_t* task_tiles, const float bg[3], float* rgb,
+                       const int32_t* task_tiles, const float bg[3], const float* base_rgb,
+                       const float* base_alpha, const float* base_depth, float* rgb,
                        float* alpha, float* depth, int num_threads) {
     const int64_t num_tasks = task_offsets[num_removals];
     // Bucket each removal's ids by the tasks (tiles) whose lists they are in.
@@ -264,17 +267,43 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
 #pragma omp parallel num_threads(num_threads)
     {
         TileState s;
+        alignas(64) uint8_t changed[kTilePixels];
 #pragma omp for schedule(dynamic, 1)
         for (int64_t j = 0; j < num_tasks; ++j) {
-            s.reset(v, task_tiles[j], nullptr);
-            composite_tile(v, task_tiles[j], keep, removed[j].data(), int64_t(removed[j].size()), s,
-                           nullptr);
+            const int tile = task_tiles[j];
+            const std::vector<int32_t>& ids = removed[j];
+            if (base_rgb) {
+                // Compositing visits a Gaussian only inside its pixel box, so outside the boxes
+                // of the removed Gaussians the result is the base render, bit for bit: only
+                // the pixels inside them are composited.
+                std::fill(changed, changed + kTilePixels, uint8_t(0));
+                const int tx = (tile % v.grid_w) * kTile, ty = (tile / v.grid_w) * kTile;
+                for (const int32_t id : ids) {
+                    const Splat& gs = v.splats[id];
+                    const int lx0 = std::max(int(gs.bx0) - tx, 0), lx1 = std::min(int(gs.bx1) - tx, kTile - 1);
+                    const int ly0 = std::max(int(gs.by0) - ty, 0), ly1 = std::min(int(gs.by1) - ty, kTile - 1);
+                    for (int ly = ly0; ly <= ly1; ++ly)
+                        for (int lx = lx0; lx <= lx1; ++lx) changed[ly * kTile + lx] = 1;
+                }
+                s.reset(v, tile, nullptr, changed);
+            } else {
+                s.reset(v, tile, nullptr);
+            }
+            if (s.remaining > 0)
+                composite_tile(v, tile, keep, ids.data(), int64_t(ids.size()), s, nullptr);
             float* prgb = rgb + int64_t(3) * kTilePixels * j;
             float* palpha = alpha + int64_t(kTilePixels) * j;
             float* pdepth = depth + int64_t(kTilePixels) * j;
             for (int p = 0; p < kTilePixels; ++p) {
                 if (p % kTile < s.w && p / kTile < s.h) {
-                    finish_pixel(s, p, bg, prgb + 3 * p, palpha + p, pdepth + p);
+                    if (base_rgb && !changed[p]) {
+                        const int64_t q = int64_t(s.y0 + p / kTile) * v.width + s.x0 + p % kTile;
+                        for (int c = 0; c < 3; ++c) prgb[3 * p + c] = base_rgb[3 * q + c];
+                        palpha[p] = base_alpha[q];
+                        pdepth[p] = base_depth[q];
+                    } else {
+                        finish_pixel(s, p, bg, prgb + 3 * p, palpha + p, pdepth + p);
+                    }
                 } else {
                     prgb[3 * p] = prgb[3 * p + 1] = prgb[3 * p + 2] = 0.0f;
                     palpha[p] = pdepth[p] = 0.0f;

@@ -106,11 +106,14 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
                           float* alpha_b, float* depth_b, int num_threads);
 
 // Batched incremental compositing: task j re-composites tile task_tiles[j] for the removal
-// task_removal[j], skipping that removal's ids (CSR, sorted ascending per removal).
+// task_removal[j], skipping that removal's ids (CSR, sorted ascending per removal). With a base
+// (the full (H, W) render of `keep`; null for none), only the pixels inside the removed
+// Gaussians' boxes are composited and the others are copied from it (the same bits).
 void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep,
                        const int64_t* removal_offsets, const int32_t* removal_ids,
                        int64_t num_removals, const int64_t* task_offsets,
-                       const int32_t* task_tiles, const float bg[3], float* rgb,
+                       const int32_t* task_tiles, const float bg[3], const float* base_rgb,
+                       const float* base_alpha, const float* base_depth, float* rgb,
                        float* alpha, float* depth, int num_threads);
 
 // Every (pixel, id, weight) the compositing adds at the masked pixels (malloc'ed, ordered by

@@ -147,7 +147,7 @@ class Verifier:
         q = excluded.ravel()
         out = []
         if self.incremental:
-            patches = self.views[j].rerender_tiles(keep=base_keep, removals=removals)
+            patches = self.views[j].rerender_tiles(keep=base_keep, removals=removals, base=base)
             for patch in patches:
                 flat, inside = tile_pixels(self.views[j], patch.tiles)
                 flat = flat[inside]
