@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import sys
+import types
+
 import numpy as np
 import pytest
 
 from clearsplat import Camera, ClearsplatError, Gaussians
-from clearsplat.render import render
+from clearsplat.cameras import look_at
+from clearsplat.render import prepare, render
 
 
 def _scene(seed=0, n=400, sh_degree=2):
@@ -92,3 +96,478 @@ def test_render_device_routes_to_gsplat_or_says_what_is_missing():
     if not have_gpu:
         with pytest.raises(ImportError, match="gsplat"):
             render(g, cam, device="cuda")
+
+
+# -- GsplatView on the CPU through a fake gsplat ----------------------------------------------
+# ``rasterization`` emulated with clearsplat's own CPU rasterizer, in gsplat 1.5.3's layout:
+# colours [..., C, H, W, 4] (RGB composited over ``backgrounds``, then the accumulated depth
+# sum z_i a_i T_i), alphas [..., C, H, W, 1], meta with means2d [..., C, N, 2], radii
+# [..., C, N, 2] int32 (0 where culled) and depths [..., C, N]. It checks the arguments the
+# GPU path relies on and takes its cameras from a registry keyed by the float32 view matrix and
+# intrinsics it must receive, so a camera-to-world matrix (or a transposed one) finds nothing.
+class FakeGsplat:
+    def __init__(self):
+        self.cameras = {}
+        self.calls = []          # batch shape of each call
+
+    @staticmethod
+    def _key(viewmat, K, width, height):
+        return (np.asarray(viewmat, np.float32).tobytes(), np.asarray(K, np.float32).tobytes(),
+                int(width), int(height))
+
+    def add(self, *cameras):
+        for cam in cameras:
+            self.cameras[self._key(cam.world_to_camera, cam.K, cam.width, cam.height)] = cam
+
+    def rasterization(self, *, means, quats, scales, opacities, colors, viewmats, Ks, width,
+                      height, near_plane, sh_degree, packed, tile_size, eps2d, radius_clip,
+                      backgrounds, render_mode, rasterize_mode):
+        import torch
+        assert (packed, tile_size, eps2d, radius_clip) == (False, 16, 0.3, 0.0)
+        assert (render_mode, rasterize_mode) == ("RGB+D", "classic")
+        batch = tuple(means.shape[:-2])
+        n, c = means.shape[-2], viewmats.shape[-3]
+        assert (sh_degree + 1) ** 2 == colors.shape[-2]
+        assert opacities.shape == batch + (n,) and viewmats.shape == batch + (c, 4, 4)
+        assert backgrounds.shape == batch + (c, 3)
+        self.calls.append(batch)
+        flat = [t.reshape((-1,) + tuple(t.shape[len(batch):])).numpy()
+                for t in (means, quats, scales, opacities, colors, viewmats, Ks, backgrounds)]
+        b = flat[0].shape[0]
+        out_c = np.zeros((b, c, height, width, 4), np.float32)
+        out_a = np.zeros((b, c, height, width, 1), np.float32)
+        radii = np.zeros((b, c, n, 2), np.int32)
+        means2d = np.zeros((b, c, n, 2), np.float32)
+        depths = np.zeros((b, c, n), np.float32)
+        for i in range(b):
+            g = Gaussians(means=flat[0][i], quats=flat[1][i], scales=flat[2][i],
+                          opacities=flat[3][i], sh=flat[4][i])
+            for j in range(c):
+                cam = self.cameras[self._key(flat[5][i, j], flat[6][i, j], width, height)]
+                pv = prepare(g, cam, near=near_plane)
+                r = pv.render(background=flat[7][i, j])
+                out_c[i, j, ..., :3] = r.rgb
+                out_c[i, j, ..., 3] = r.depth * r.alpha
+                out_a[i, j, ..., 0] = r.alpha
+                u, v, depth = pv._splats[:, 0], pv._splats[:, 1], pv._splats[:, 9]
+                x0, y0, x1, y1 = (pv._rects[:, k].astype(np.float64) * 16 for k in range(4))
+                # A box whose gsplat tile range covers the CPU tiles [x0, x1] x [y0, y1].
+                rx = np.ceil(np.maximum(u - x0, x1 + 16 - u))
+                ry = np.ceil(np.maximum(v - y0, y1 + 16 - v))
+                radii[i, j, pv._index] = np.stack([rx, ry], axis=1).astype(np.int32)
+                means2d[i, j, pv._index] = np.stack([u, v], axis=1)
+                depths[i, j, pv._index] = depth
+        shape = batch + (c,)
+        meta = {"radii": torch.from_numpy(radii.reshape(shape + (n, 2))),
+                "means2d": torch.from_numpy(means2d.reshape(shape + (n, 2))),
+                "depths": torch.from_numpy(depths.reshape(shape + (n,)))}
+        return (torch.from_numpy(out_c.reshape(shape + (height, width, 4))),
+                torch.from_numpy(out_a.reshape(shape + (height, width, 1))), meta)
+
+
+@pytest.fixture
+def fake_gsplat(monkeypatch):
+    pytest.importorskip("torch")
+    fake = FakeGsplat()
+    module = types.ModuleType("gsplat")
+    module.rasterization = fake.rasterization
+    monkeypatch.setitem(sys.modules, "gsplat", module)
+    return fake
+
+
+def _world(seed=0, n=500, sh_degree=2):
+    """Seeded Gaussians with some behind the cameras, beside the frustum and below 1/255
+    opacity, and two cameras (one rotated, off-centre principal point; 70x45: border tiles)."""
+    rng = np.random.default_rng(seed)
+    k = (sh_degree + 1) ** 2
+    means = rng.normal(size=(n, 3)) * [0.9, 0.7, 0.6]
+    means[: n // 10, 2] = rng.uniform(-6.0, -3.1, n // 10)
+    opac = rng.uniform(0.05, 0.99, n)
+    opac[n // 10: n // 10 + 5] = 0.002
+    g = Gaussians(means=means, scales=np.exp(rng.uniform(np.log(0.01), np.log(0.2), (n, 3))),
+                  quats=rng.normal(size=(n, 4)), opacities=opac,
+                  sh=rng.normal(size=(n, k, 3)) * 0.4)
+    cams = [Camera(K=[[90.0, 0, 55.3], [0, 93.0, 34.8], [0, 0, 1]],
+                   camera_to_world=look_at(eye, (0, 0, 0), up=(0, -1, 0)), width=110, height=70)
+            for eye in ((0.3, 0.2, -3.0), (-1.2, 0.4, -2.8))]
+    return g, cams
+
+
+def _assert_same(a, b, *, exact_depth=False):
+    """GsplatView result ``a`` against the PreparedView result ``b``."""
+    for name in ("rgb", "alpha", "depth"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.shape == y.shape and x.dtype == np.float32
+    np.testing.assert_array_equal(a.rgb, b.rgb)
+    np.testing.assert_array_equal(a.alpha, b.alpha)
+    if exact_depth:
+        np.testing.assert_array_equal(a.depth, b.depth)
+    else:
+        # The fake hands back depth * alpha rounded to float32 and the view divides by alpha
+        # again: two roundings, so a few ulps (relative 1e-6) instead of bit equality.
+        np.testing.assert_allclose(a.depth, b.depth, rtol=1e-6, atol=0)
+        assert ((a.depth == 0) == (b.depth == 0)).all()
+
+
+def test_gsplat_view_equals_prepared_view(fake_gsplat):
+    from clearsplat._gsplat import prepare_gsplat_views
+    g, cams = _world()
+    fake_gsplat.add(*cams)
+    views = prepare_gsplat_views(g, cams, device="cpu")
+    assert views[0].gaussians is views[1].gaussians          # one upload for the scene
+    n = len(g)
+    rng = np.random.default_rng(5)
+    bg = (0.2, 0.4, 0.6)
+    for gv, cam in zip(views, cams):
+        pv = prepare(g, cam)
+        assert (gv.camera, gv.num_gaussians, gv.grid, gv.num_tiles, gv.tile_size) \
+            == (cam, pv.num_gaussians, pv.grid, pv.num_tiles, pv.tile_size)
+        assert gv.num_visible == pv.num_visible and 0 < pv.num_visible < n
+        np.testing.assert_array_equal(gv.centres_inside(), pv.centres_inside())
+        keeps = [None, np.ones(n, bool), np.zeros(n, bool), rng.uniform(size=n) > 0.3]
+        for keep in keeps:
+            _assert_same(gv.render(keep=keep, background=bg), pv.render(keep=keep, background=bg))
+        many = gv.render_many(keeps, background=bg)
+        for keep, r in zip(keeps, many):
+            _assert_same(r, pv.render(keep=keep, background=bg))
+        for r, s in zip(gv.render_many(keeps, background=bg, batch_size=1), many):
+            _assert_same(r, s, exact_depth=True)
+
+        own = rng.uniform(size=n) > 0.6
+        first = rng.uniform(size=n) > 0.1
+        for kw in ({}, {"first": first}):
+            for x, y in zip(gv.render_pair(keep=~own, **kw), pv.render_pair(keep=~own, **kw)):
+                _assert_same(x, y)
+
+        removed = rng.choice(n, 6, replace=False)
+        tiles = gv.tiles_touched(removed)
+        assert tiles.dtype == np.int32 and (np.diff(tiles) > 0).all()
+        # gsplat's boxes hold the CPU tiles (the fake's radii are built to), so re-rendering
+        # them gives the full render, and the results equal the CPU ones in the same tiles.
+        assert set(pv.tiles_touched(removed)) <= set(tiles) and tiles.size < gv.num_tiles
+        mask = np.zeros(n, bool)
+        mask[removed] = True
+        np.testing.assert_array_equal(gv.tiles_touched(mask), tiles)
+        assert gv.tiles_touched(np.array([], dtype=np.int64)).size == 0
+        base = gv.render(keep=first, background=bg)
+        keep = first & ~mask
+        re = gv.rerender(base, keep=keep, tiles=tiles, background=bg)
+        _assert_same(re, pv.rerender(base, keep=keep, tiles=tiles, background=bg),
+                     exact_depth=True)
+        _assert_same(re, pv.render(keep=keep, background=bg))
+        _assert_same(gv.rerender(base, keep=keep, background=bg),
+                     pv.render(keep=keep, background=bg))
+        _assert_same(gv.rerender(base, keep=keep, tiles=[], background=bg), base,
+                     exact_depth=True)
+        start = pv.render(keep=first)
+        for kw in ({"start": start}, {}):
+            got = gv.render_pair(first=first, keep=keep, tiles=tiles, **kw)
+            want = pv.render_pair(first=first, keep=keep, tiles=tiles, **kw)
+            for x, y in zip(got, want):
+                _assert_same(x, y)
+        for x, y in zip(gv.render_pair(keep=keep, tiles=[], start=start),
+                        pv.render_pair(keep=keep, tiles=[], start=start)):
+            _assert_same(x, y, exact_depth=True)
+
+        region = np.zeros((cam.height, cam.width), bool)
+        region[10:30, 20:50] = True
+        for k in (None, own):
+            got, want = gv.contributions(region, keep=k), pv.contributions(region, keep=k)
+            for x, y in zip(got, want):
+                np.testing.assert_array_equal(x, y)
+                assert x.dtype == y.dtype
+    # A batched pair is one gsplat call; batch_size=1 one call per render.
+    fake_gsplat.calls.clear()
+    views[0].render_pair(keep=~own)
+    assert fake_gsplat.calls == [(2,)]
+
+
+def test_gsplat_view_projection_is_kept_once(fake_gsplat):
+    from clearsplat._gsplat import prepare_gsplat
+    g, cams = _world(1, n=200, sh_degree=0)
+    fake_gsplat.add(cams[0])
+    gv = prepare_gsplat(g, cams[0], device="cpu")
+    keep = np.random.default_rng(2).uniform(size=len(g)) > 0.5
+    gv.render(keep=keep)                                    # does not give the projection
+    assert len(fake_gsplat.calls) == 1
+    inside = gv.centres_inside()                            # one render of everything
+    assert len(fake_gsplat.calls) == 2
+    gv.tiles_touched(np.arange(10))
+    assert gv.num_visible == prepare(g, cams[0]).num_visible
+    assert len(fake_gsplat.calls) == 2
+    np.testing.assert_array_equal(inside, prepare(g, cams[0]).centres_inside())
+    empty = gv.render(keep=np.zeros(len(g), bool), background=(1, 0, 0))
+    assert len(fake_gsplat.calls) == 2                      # nothing to render: no call
+    assert (empty.rgb == np.float32([1, 0, 0])).all() and not empty.alpha.any()
+    # From a batch whose second render has all Gaussians (render_pair(first=None, ...)).
+    gv2 = prepare_gsplat(gv.gaussians, cams[0])
+    gv2.render_many([keep, None])
+    assert fake_gsplat.calls[-1] == (2,) and len(fake_gsplat.calls) == 3
+    np.testing.assert_array_equal(gv2.centres_inside(), inside)
+    np.testing.assert_array_equal(gv2.tiles_touched(np.arange(10)), gv.tiles_touched(np.arange(10)))
+    assert len(fake_gsplat.calls) == 3
+
+
+def test_gsplat_view_empty_scene(fake_gsplat):
+    from clearsplat._gsplat import prepare_gsplat
+    g, cams = _world(n=20)
+    g = g.subset(np.zeros(len(g), bool))
+    gv = prepare_gsplat(g, cams[0], device="cpu")
+    assert gv.num_visible == 0 and gv.tiles_touched(np.zeros(0, bool)).size == 0
+    assert not gv.centres_inside().size
+    r = gv.render(background=(0.5, 0.5, 0.5))
+    assert (r.rgb == 0.5).all() and not r.alpha.any() and not r.depth.any()
+    assert fake_gsplat.calls == []
+
+
+def test_render_gsplat_through_fake_equals_cpu(fake_gsplat):
+    from clearsplat._gsplat import render_gsplat
+    g, cams = _world(3, n=300, sh_degree=3)
+    fake_gsplat.add(cams[1])
+    keep = np.random.default_rng(3).uniform(size=len(g)) > 0.2
+    _assert_same(render_gsplat(g, cams[1], keep=keep, background=(0.1, 0.2, 0.3), device="cpu"),
+                 render(g, cams[1], keep=keep, background=(0.1, 0.2, 0.3)))
+
+
+def test_gsplat_view_bad_input(fake_gsplat):
+    from clearsplat._gsplat import prepare_gsplat, upload_gaussians
+    g, cams = _world(n=50)
+    fake_gsplat.add(cams[0])
+    n = len(g)
+    with pytest.raises(ClearsplatError) as e:
+        prepare_gsplat(g, "camera", device="cpu")
+    assert e.value.field == "camera"
+    with pytest.raises(ClearsplatError) as e:
+        prepare_gsplat(g, cams[0], near=0, device="cpu")
+    assert e.value.field == "near"
+    with pytest.raises(ClearsplatError) as e:
+        upload_gaussians(g, device="nonsense")
+    assert e.value.field == "device"
+    dev = upload_gaussians(g, device="cpu")
+    with pytest.raises(ClearsplatError) as e:
+        prepare_gsplat(dev, cams[0], device="cuda")
+    assert e.value.field == "device"
+    gv = prepare_gsplat(dev, cams[0])
+    base = gv.render()
+    cases = [
+        (lambda: gv.render(keep=np.ones(n - 1, bool)), "keep"),
+        (lambda: gv.render(keep=np.ones(n, np.int8)), "keep"),
+        (lambda: gv.render(background=(0, 0)), "background"),
+        (lambda: gv.render_pair(keep=None), "keep"),
+        (lambda: gv.render_pair(keep=np.ones(n, bool), first=np.ones(2, bool)), "first"),
+        (lambda: gv.render_pair(keep=np.ones(n, bool), tiles=[gv.num_tiles]), "tiles"),
+        (lambda: gv.render_pair(keep=np.ones(n, bool), tiles=[0], start=base.rgb), "start"),
+        (lambda: gv.rerender(base.rgb, keep=None), "base"),
+        (lambda: gv.rerender(base, keep=None, tiles=[[0]]), "tiles"),
+        (lambda: gv.render_many([None, np.ones(3, bool)]), "keeps[1]"),
+        (lambda: gv.render_many([None], batch_size=0), "batch_size"),
+        (lambda: gv.tiles_touched([n]), "gaussians"),
+        (lambda: gv.tiles_touched(np.ones(3, bool)), "gaussians"),
+        (lambda: gv.contributions(np.ones((2, 2), bool)), "mask"),
+    ]
+    for call, field in cases:
+        with pytest.raises(ClearsplatError) as e:
+            call()
+        assert e.value.field == field, field
+
+
+def test_prepare_gsplat_without_gpu_says_what_is_missing():
+    from clearsplat._gsplat import prepare_gsplat, prepare_gsplat_views
+    g, cams = _world(n=20)
+    try:
+        import gsplat  # noqa: F401
+        import torch
+        if torch.cuda.is_available():
+            pytest.skip("gsplat and CUDA are available")
+    except ImportError:
+        pass
+    with pytest.raises(ImportError, match="pip install gsplat"):
+        prepare_gsplat(g, cams[0])
+    with pytest.raises(ImportError, match="pip install gsplat"):
+        prepare_gsplat_views(g, cams)
+    with pytest.raises(ClearsplatError) as e:     # bad input first, even without a GPU
+        prepare_gsplat(g, object())
+    assert e.value.field == "camera"
+
+
+# -- conventions against gsplat's pure-PyTorch reference (CPU) -------------------------------
+def test_projection_conventions_match_gsplat_reference():
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("gsplat")
+    from gsplat.cuda import _torch_impl as gs
+    g, cams = _world(7, n=300, sh_degree=3)
+    cam = Camera(K=[[90.0, 0, 55.0], [0, 93.0, 35.0], [0, 0, 1]],   # centred principal point
+                 camera_to_world=cams[1].camera_to_world, width=110, height=70)
+    pv = prepare(g, cam)
+    sp, idx = pv._splats, pv._index
+
+    def t(a):
+        return torch.as_tensor(np.asarray(a, np.float64))
+
+    covars, _ = gs._quat_scale_to_covar_preci(t(g.quats), t(g.scales), compute_preci=False)
+    radii, means2d, depths, conics, _ = gs._fully_fused_projection(
+        t(g.means), covars, t(cam.world_to_camera)[None], t(cam.K)[None], cam.width,
+        cam.height, eps2d=0.3, near_plane=0.01)
+    radii, means2d = radii[0].numpy(), means2d[0].numpy()
+    depths, conics = depths[0].numpy(), conics[0].numpy()
+    visible = (radii > 0).all(axis=1)
+    both = visible[idx]
+    assert both.sum() >= 0.9 * idx.size > 0
+    ids = idx[both]
+    np.testing.assert_allclose(sp[both, 0], means2d[ids, 0], atol=1e-4, rtol=0)
+    np.testing.assert_allclose(sp[both, 1], means2d[ids, 1], atol=1e-4, rtol=0)
+    np.testing.assert_allclose(sp[both, 9], depths[ids], rtol=1e-6)
+    scale = np.abs(conics[ids]).max(axis=1, keepdims=True)
+    assert (np.abs(sp[both, 2:5] - conics[ids]) / scale).max() < 1e-4
+    # gsplat's box radius ceil(3.33 sqrt(Sigma2D_xx)) from our conic, within a pixel.
+    ca, cb, cc = sp[both, 2].astype(np.float64), sp[both, 3], sp[both, 4]
+    det = ca * cc - cb * cb
+    ours = np.stack([np.ceil(3.33 * np.sqrt(cc / det)), np.ceil(3.33 * np.sqrt(ca / det))], 1)
+    assert np.abs(ours - radii[ids]).max() <= 1
+    # SH colours: gsplat evaluates from the camera centre towards the Gaussian, + 0.5, >= 0.
+    dirs = t(g.means) - t(cam.position)
+    rgb = torch.clamp_min(gs._spherical_harmonics(3, dirs, t(g.sh)) + 0.5, 0.0).numpy()
+    np.testing.assert_allclose(sp[:, 6:9], rgb[idx], atol=1e-5, rtol=0)
+
+
+def test_tile_rule_matches_gsplat_reference():
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("gsplat")
+    from gsplat.cuda import _torch_impl as gs
+    from clearsplat._gsplat import GsplatView, upload_gaussians
+    g, cams = _world(8, n=150)
+    cam = cams[0]
+    covars, _ = gs._quat_scale_to_covar_preci(torch.as_tensor(g.quats), torch.as_tensor(g.scales),
+                                              compute_preci=False)
+    radii, means2d, depths, _, _ = gs._fully_fused_projection(
+        torch.as_tensor(g.means), covars,
+        torch.as_tensor(cam.world_to_camera, dtype=torch.float32)[None],
+        torch.as_tensor(cam.K, dtype=torch.float32)[None], cam.width, cam.height)
+    rows, cols = -(-cam.height // 16), -(-cam.width // 16)
+    _, isect_ids, flatten_ids = gs._isect_tiles(means2d, radii, depths, 16, cols, rows)
+    tile_of = ((isect_ids >> 32) & ((1 << (rows * cols).bit_length()) - 1)).numpy()
+    gauss_of = flatten_ids.numpy() % len(g)
+    # No gsplat call here: the view is given the reference projection directly.
+    gv = GsplatView(upload_gaussians(g, device="cpu"), cam, near=0.01)
+    gv._store_projection(means2d[0].numpy(), radii[0].numpy())
+    assert gv.num_visible == int((radii[0] > 0).all(-1).sum()) > 0
+    rng = np.random.default_rng(0)
+    for chosen in [np.arange(len(g)), *(rng.choice(len(g), 5, replace=False) for _ in range(20))]:
+        want = np.unique(tile_of[np.isin(gauss_of, chosen)])
+        np.testing.assert_array_equal(gv.tiles_touched(chosen), want)
+
+
+# -- GsplatView on a real GPU -----------------------------------------------------------------
+@pytest.fixture
+def gpu_views():
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("gsplat")
+    if not torch.cuda.is_available():
+        pytest.skip("no CUDA GPU")
+    from clearsplat._gsplat import prepare_gsplat_views
+    return prepare_gsplat_views
+
+
+def _assert_close(out, cpu):
+    for name in ("rgb", "alpha", "depth"):
+        a, b = getattr(cpu, name), getattr(out, name)
+        assert a.shape == b.shape and b.dtype == np.float32
+    assert np.abs(cpu.rgb - out.rgb).mean() < 1e-3
+    assert np.abs(cpu.rgb - out.rgb).max() < 2e-2
+    assert np.abs(cpu.alpha - out.alpha).max() < 2e-2
+    covered = (cpu.alpha > 0.5) & (out.alpha > 0.5)
+    assert np.abs(cpu.depth - out.depth)[covered].max() < 1e-2
+
+
+def test_gsplat_view_matches_cpu_on_gpu(gpu_views):
+    g, cams = _world(11, n=800, sh_degree=3)
+    views = gpu_views(g, cams)
+    n = len(g)
+    rng = np.random.default_rng(4)
+    bg = (0.2, 0.4, 0.6)
+    for gv, cam in zip(views, cams):
+        pv = prepare(g, cam)
+        own = rng.uniform(size=n) > 0.6
+        keep = rng.uniform(size=n) > 0.3
+        for k in (None, keep):
+            _assert_close(gv.render(keep=k, background=bg), pv.render(keep=k, background=bg))
+        for x, y in zip(gv.render_pair(keep=~own), pv.render_pair(keep=~own)):
+            _assert_close(x, y)
+        empty = gv.render(keep=np.zeros(n, bool), background=bg)
+        assert np.allclose(empty.rgb, bg) and (empty.alpha == 0).all()
+        # Visibility and centres agree with the CPU except at the image border.
+        assert abs(gv.num_visible - pv.num_visible) <= 0.05 * pv.num_visible
+        assert (gv.centres_inside() != pv.centres_inside()).mean() < 0.01
+        # Exactness of the tile sets on the GPU: re-rendering only the touched tiles gives the
+        # full render (the renders are deterministic).
+        removed = np.flatnonzero(rng.uniform(size=n) < 0.05)
+        after = keep.copy()
+        after[removed] = False
+        base = gv.render(keep=keep)
+        full = gv.render(keep=after)
+        part = gv.rerender(base, keep=after, tiles=gv.tiles_touched(removed))
+        for name in ("rgb", "alpha", "depth"):
+            np.testing.assert_allclose(getattr(part, name), getattr(full, name), atol=1e-6)
+        batched = gv.render_many([None, keep, after], batch_size=3)
+        looped = gv.render_many([None, keep, after], batch_size=1)
+        for x, y in zip(batched, looped):
+            for name in ("rgb", "alpha", "depth"):
+                np.testing.assert_allclose(getattr(x, name), getattr(y, name), atol=1e-6)
+
+
+# -- filter_distractors(device=...) ----------------------------------------------------------
+def _filter_world():
+    from clearsplat.synth import make_world, reconstruct
+    world = make_world("object", num_views=4, seed=2, height=64, width=112)
+    return reconstruct(world.cameras, world.images, world.depths, seed=2)
+
+
+def test_filter_on_gpu_path_equals_cpu_filter(fake_gsplat, monkeypatch):
+    # The whole GPU path of the filter (views, full-image verification renders, joint test)
+    # through the fake gsplat, which is the CPU rasterizer: the same decisions as on the CPU.
+    from clearsplat import _gsplat
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import FilterConfig, filter_distractors
+    scene = _filter_world()
+    fake_gsplat.add(*scene.cameras)
+    chosen = []
+
+    def on_cpu_torch(scene, cameras, *, device):
+        chosen.append(device)
+        return real(scene, cameras, device="cpu")   # torch CPU tensors into the fake
+
+    real = _gsplat.prepare_gsplat_views
+    monkeypatch.setattr(_gsplat, "prepare_gsplat_views", on_cpu_torch)
+    extractor = get_extractor("local")
+    cpu = filter_distractors(scene, extractor=extractor)
+    gpu = filter_distractors(scene, config=FilterConfig(device="cuda:0"), extractor=extractor)
+    assert chosen == ["cuda:0"] and len(fake_gsplat.calls) > 10
+    assert cpu.removed.sum() > 0
+    np.testing.assert_array_equal(gpu.keep, cpu.keep)
+    assert [c.accepted for c in gpu.candidates] == [c.accepted for c in cpu.candidates]
+    for a, b in zip(gpu.candidates, cpu.candidates):
+        assert a.scores.keys() == b.scores.keys()
+        for k in a.scores:
+            assert a.scores[k] == pytest.approx(b.scores[k], rel=1e-4, abs=1e-9)
+
+
+def test_filter_device_is_validated():
+    from clearsplat.filter import FilterConfig
+    for bad in ("gpu", "cuda:x", "CUDA", 0):
+        with pytest.raises(ClearsplatError) as e:
+            FilterConfig(device=bad)
+        assert e.value.field == "device"
+    assert FilterConfig(device="cuda:1").device == "cuda:1"
+
+
+def test_filter_on_gpu(gpu_views):
+    # On a real GPU: the same distractors as the CPU filter, up to borderline candidates.
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import FilterConfig, filter_distractors
+    scene = _filter_world()
+    extractor = get_extractor("local")
+    cpu = filter_distractors(scene, extractor=extractor)
+    gpu = filter_distractors(scene, config=FilterConfig(device="cuda"), extractor=extractor)
+    both = (cpu.removed & gpu.removed).sum()
+    either = (cpu.removed | gpu.removed).sum()
+    assert cpu.removed.sum() > 0 and both / either >= 0.9

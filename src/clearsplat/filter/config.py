@@ -91,6 +91,10 @@ class FilterConfig:
         images (slow reference path).
     num_threads : int or None
         Threads of the native rasterizer (None: all cores).
+    device : str
+        ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
+        render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
+        verification re-renders whole images (``incremental`` applies to the CPU only).
     """
 
     features: str = "local"
@@ -115,8 +119,14 @@ class FilterConfig:
     association_min_weight: float = 0.05
     incremental: bool = True
     num_threads: int | None = None
+    device: str = "cpu"
 
     def __post_init__(self):
+        if not isinstance(self.device, str) or not (
+                self.device == "cpu" or self.device == "cuda"
+                or (self.device.startswith("cuda:") and self.device[5:].isdigit())):
+            raise ClearsplatError(f"unknown device {self.device!r}; expected 'cpu', 'cuda' or "
+                                  "'cuda:N'", field="device")
         if self.verify_base not in ("full", "exclude-own"):
             raise ClearsplatError(f"unknown value {self.verify_base!r}; expected 'full' or "
                                   "'exclude-own'", field="verify_base")

@@ -175,7 +175,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                if scene.num_views < 2 else "the scene has no Gaussians")
         warnings.warn(msg, stacklevel=2)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
-    check_memory(estimate_filter_memory(n, scene.cameras))
+    on_gpu = config.device != "cpu"
+    if not on_gpu:  # the GPU path holds only images and masks on the host
+        check_memory(estimate_filter_memory(n, scene.cameras))
     report = progress or (lambda stage, done, total: None)
     if extractor is None:
         # Only the DINO extractors take a checkpoint; the others ignore a global --checkpoint.
@@ -192,8 +194,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     index = ViewIndex(scene)
     own = [index.mask(i, n) for i in range(scene.num_views)]
     views, full, excl = [], [], []
+    if on_gpu:  # one upload of the Gaussians, shared by the views
+        from .._gsplat import prepare_gsplat_views
+        gpu_views = prepare_gsplat_views(scene, scene.cameras, device=config.device)
     for i, cam in enumerate(scene.cameras):
-        pv = prepare(scene, cam, num_threads=threads)
+        pv = gpu_views[i] if on_gpu else prepare(scene, cam, num_threads=threads)
         views.append(pv)
         lap("prepare")
         r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
@@ -264,8 +269,10 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     # -- verification -------------------------------------------------------------------------
     t0 = time.perf_counter()
     lap = _Laps(timings, "verification")
+    # Tile patches are a CPU feature: on a GPU every verification render is a whole image.
+    incremental = config.incremental and not on_gpu
     verifier = Verifier(views, scene.images, epsilon=config.epsilon,
-                        incremental=config.incremental,
+                        incremental=incremental,
                         hole_alpha=config.eta if _skip_holes(config, scene) else 0.0)
     support_px = [p.support_pixels for p in proposals]
 
@@ -391,7 +398,7 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
             base_keep, start = ~removed_first, full[j]
         else:
             base_keep, start = ~(removed_first | own[j]), excl[j]
-        if config.incremental:
+        if verifier.incremental:
             # The score reads only the tiles the joint removal touches: composite the base and
             # the base without the joint removal there, in one pass.
             tiles = pv.tiles_touched(joint)
