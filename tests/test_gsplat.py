@@ -28,16 +28,21 @@ def _scene(seed=0, n=400, sh_degree=2):
     return g, cam
 
 
-def test_missing_gsplat_raises_import_error_with_hint():
-    from clearsplat._gsplat import render_gsplat
-    g, cam = _scene(n=3)
+def _skip_if_gpu_ready():
+    """Skip a test of the missing-GPU errors where gsplat and CUDA are there."""
     try:
         import gsplat  # noqa: F401
         import torch
-        if torch.cuda.is_available():
-            pytest.skip("gsplat and CUDA are available")
     except ImportError:
-        pass
+        return
+    if torch.cuda.is_available():
+        pytest.skip("gsplat and CUDA are available")
+
+
+def test_missing_gsplat_raises_import_error_with_hint():
+    from clearsplat._gsplat import render_gsplat
+    g, cam = _scene(n=3)
+    _skip_if_gpu_ready()
     with pytest.raises(ImportError, match="pip install gsplat"):
         render_gsplat(g, cam)
 
@@ -53,14 +58,18 @@ def test_bad_input_is_reported_before_the_gpu():
     assert e.value.field == "keep"
 
 
-@pytest.fixture
-def gpu():
+def _need_cuda_gsplat():
     torch = pytest.importorskip("torch")
     pytest.importorskip("gsplat")
     if not torch.cuda.is_available():
         pytest.skip("no CUDA GPU")
-    from clearsplat._gsplat import render_gsplat
-    return render_gsplat
+    from clearsplat import _gsplat
+    return _gsplat
+
+
+@pytest.fixture
+def gpu():
+    return _need_cuda_gsplat().render_gsplat
 
 
 @pytest.mark.parametrize("sh_degree", [0, 3])
@@ -374,13 +383,7 @@ def test_gsplat_view_bad_input(fake_gsplat):
 def test_prepare_gsplat_without_gpu_says_what_is_missing():
     from clearsplat._gsplat import prepare_gsplat, prepare_gsplat_views
     g, cams = _world(n=20)
-    try:
-        import gsplat  # noqa: F401
-        import torch
-        if torch.cuda.is_available():
-            pytest.skip("gsplat and CUDA are available")
-    except ImportError:
-        pass
+    _skip_if_gpu_ready()
     with pytest.raises(ImportError, match="pip install gsplat"):
         prepare_gsplat(g, cams[0])
     with pytest.raises(ImportError, match="pip install gsplat"):
@@ -460,12 +463,7 @@ def test_tile_rule_matches_gsplat_reference():
 # -- GsplatView on a real GPU -----------------------------------------------------------------
 @pytest.fixture
 def gpu_views():
-    torch = pytest.importorskip("torch")
-    pytest.importorskip("gsplat")
-    if not torch.cuda.is_available():
-        pytest.skip("no CUDA GPU")
-    from clearsplat._gsplat import prepare_gsplat_views
-    return prepare_gsplat_views
+    return _need_cuda_gsplat().prepare_gsplat_views
 
 
 def _assert_close(out, cpu):

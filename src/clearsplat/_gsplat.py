@@ -49,7 +49,7 @@ from .cameras import Camera
 from .errors import ClearsplatError
 from .render import (TILE, Contributions, PreparedView, RenderResult, _check_background,
                      _check_camera, _check_gaussians, _check_indices, _check_keep, _check_near,
-                     _gaussians, prepare)
+                     _gaussians, _TiledView, prepare)
 from .scene import Gaussians, Scene
 
 __all__ = ["render_gsplat", "upload_gaussians", "DeviceGaussians", "GsplatView",
@@ -262,7 +262,7 @@ def upload_gaussians(scene, *, device: str = "cuda") -> DeviceGaussians:
 
 
 # -- prepared GPU view -----------------------------------------------------------------------
-class GsplatView:
+class GsplatView(_TiledView):
     """One camera rendered through gsplat: the GPU counterpart of ``PreparedView``.
 
     Made by :func:`prepare_gsplat` or :func:`prepare_gsplat_views`. Implements what
@@ -300,8 +300,6 @@ class GsplatView:
         CPU path's differs at the image border).
     """
 
-    tile_size = TILE
-
     def __init__(self, gaussians: DeviceGaussians, camera: Camera, *, near: float):
         self.gaussians = gaussians
         self.camera = camera
@@ -318,15 +316,6 @@ class GsplatView:
     @property
     def num_gaussians(self) -> int:
         return self.gaussians.num_gaussians
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        return (-(-self.camera.height // TILE), -(-self.camera.width // TILE))
-
-    @property
-    def num_tiles(self) -> int:
-        rows, cols = self.grid
-        return rows * cols
 
     @property
     def num_visible(self) -> int:
@@ -427,24 +416,6 @@ class GsplatView:
         return np.flatnonzero(cover.ravel() > 0.5).astype(np.int32)
 
     # -- checks ----------------------------------------------------------------------------
-    def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
-        t = np.asarray(tiles)
-        if t.size == 0:
-            return np.empty(0, dtype=np.int32)
-        if not np.issubdtype(t.dtype, np.integer) or t.ndim != 1:
-            raise ClearsplatError(f"expected a 1-D int array of tile ids, got {t.dtype} {t.shape}",
-                                  field=field)
-        if t.min() < 0 or t.max() >= self.num_tiles:
-            raise ClearsplatError(f"tile id out of range 0..{self.num_tiles - 1}", field=field)
-        return np.unique(t).astype(np.int32)
-
-    def _check_result(self, base, field: str) -> RenderResult:
-        h, w = self.camera.height, self.camera.width
-        if not isinstance(base, RenderResult) or np.shape(base.rgb) != (h, w, 3) \
-                or np.shape(base.alpha) != (h, w) or np.shape(base.depth) != (h, w):
-            raise ClearsplatError(f"expected a RenderResult of a {w}x{h} view", field=field)
-        return base
-
     def _tile_pixels(self, tiles: np.ndarray) -> np.ndarray:
         """(H, W) bool: the pixels of ``tiles``."""
         rows, cols = self.grid

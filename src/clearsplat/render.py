@@ -172,7 +172,42 @@ def _check_indices(gaussians, n: int, field: str) -> np.ndarray:
 
 
 # -- prepared view ---------------------------------------------------------------------------
-class PreparedView:
+class _TiledView:
+    """The tile grid of a view's ``camera`` and the checks against it (shared by
+    :class:`PreparedView` and the GPU views of ``clearsplat._gsplat``)."""
+
+    tile_size = TILE
+    camera: Camera
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        return (-(-self.camera.height // TILE), -(-self.camera.width // TILE))
+
+    @property
+    def num_tiles(self) -> int:
+        rows, cols = self.grid
+        return rows * cols
+
+    def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
+        t = np.asarray(tiles)
+        if t.size == 0:
+            return np.empty(0, dtype=np.int32)
+        if not np.issubdtype(t.dtype, np.integer) or t.ndim != 1:
+            raise ClearsplatError(f"expected a 1-D int array of tile ids, got {t.dtype} {t.shape}",
+                                  field=field)
+        if t.min() < 0 or t.max() >= self.num_tiles:
+            raise ClearsplatError(f"tile id out of range 0..{self.num_tiles - 1}", field=field)
+        return np.unique(t).astype(np.int32)
+
+    def _check_result(self, base, field: str = "base") -> RenderResult:
+        h, w = self.camera.height, self.camera.width
+        if not isinstance(base, RenderResult) or np.shape(base.rgb) != (h, w, 3) \
+                or np.shape(base.alpha) != (h, w) or np.shape(base.depth) != (h, w):
+            raise ClearsplatError(f"expected a RenderResult of a {w}x{h} view", field=field)
+        return base
+
+
+class PreparedView(_TiledView):
     """One camera with projection, tile binning and depth sort done (visible Gaussians only).
 
     Made by :func:`prepare`. Stores the visible Gaussians compactly (about 60 bytes each plus
@@ -194,8 +229,6 @@ class PreparedView:
         Bytes held by the arrays of this view.
     """
 
-    tile_size = TILE
-
     def __init__(self, *, camera: Camera, num_gaussians: int, splats, rects, index, offsets,
                  lists, num_threads: int):
         self.camera = camera
@@ -206,15 +239,6 @@ class PreparedView:
         self._visible_id = None  # (N,) int32 Gaussian -> visible id or -1, built on demand
 
     # -- properties ------------------------------------------------------------------------
-    @property
-    def grid(self) -> tuple[int, int]:
-        return (-(-self.camera.height // TILE), -(-self.camera.width // TILE))
-
-    @property
-    def num_tiles(self) -> int:
-        rows, cols = self.grid
-        return rows * cols
-
     @property
     def num_visible(self) -> int:
         return int(self._index.shape[0])
@@ -276,24 +300,6 @@ class PreparedView:
         flags = np.zeros(self.num_visible, dtype=bool)   # a scatter beats sorting large sets
         flags[ids] = True
         return np.flatnonzero(flags).astype(np.int32)
-
-    def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
-        t = np.asarray(tiles)
-        if t.size == 0:
-            return np.empty(0, dtype=np.int32)
-        if not np.issubdtype(t.dtype, np.integer) or t.ndim != 1:
-            raise ClearsplatError(f"expected a 1-D int array of tile ids, got {t.dtype} {t.shape}",
-                                  field=field)
-        if t.min() < 0 or t.max() >= self.num_tiles:
-            raise ClearsplatError(f"tile id out of range 0..{self.num_tiles - 1}", field=field)
-        return np.unique(t).astype(np.int32)
-
-    def _check_result(self, base, field: str = "base") -> RenderResult:
-        h, w = self.camera.height, self.camera.width
-        if not isinstance(base, RenderResult) or np.shape(base.rgb) != (h, w, 3) \
-                or np.shape(base.alpha) != (h, w) or np.shape(base.depth) != (h, w):
-            raise ClearsplatError(f"expected a RenderResult of a {w}x{h} view", field=field)
-        return base
 
     def _tile_pixels(self, tiles: np.ndarray):
         """Row and column indices (T, 16, 1), (T, 1, 16) clipped into the image, and validity."""
