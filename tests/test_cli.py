@@ -157,7 +157,7 @@ def test_filter_writes_only_out(bundle, tmp_path, capsys):
     assert "clearsplat: error" not in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(listing + ["out"])
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        "gaussians.ply", "removed.npy", "summary.json"]
+        ".clearsplat.json", "gaussians.ply", "removed.npy", "summary.json"]
     removed = np.load(tmp_path / "out" / "removed.npy")
     assert removed.dtype == bool and removed.shape == (5376,)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -198,12 +198,12 @@ def test_force_refuses_unrelated_folders_and_the_input(bundle, tmp_path, capsys)
     (other / "holiday.jpg").write_bytes(b"precious")
     code, _, err = _filter(bundle, other, capsys, "--force")
     assert code == 2
-    assert_one_error(err, str(other), "--out", "not the output of clearsplat filter")
+    assert_one_error(err, str(other), "--out", "clearsplat did not write")
     assert (other / "holiday.jpg").read_bytes() == b"precious"
     for out in (bundle, tmp_path):                 # the bundle itself, and a folder holding it
         code, _, err = _filter(bundle, out, capsys, "--force")
         assert code == 2
-        assert_one_error(err, str(out), "--out", "would replace the input bundle")
+        assert_one_error(err, str(out), "--out", "would replace an input")
     assert leftovers(tmp_path) == []
 
 
@@ -214,8 +214,10 @@ def test_existing_file_as_out(bundle, tmp_path, capsys):
     assert code == 2
     assert_one_error(err, str(out), "--out", "not a folder")
     assert out.read_text() == "a file"
-    assert _filter(bundle, out, capsys, "--force")[0] == 0
-    assert (out / "removed.npy").is_file()
+    code, _, err = _filter(bundle, out, capsys, "--force")    # a file is never replaced
+    assert code == 2
+    assert_one_error(err, str(out), "--out", "not a folder")
+    assert out.read_text() == "a file"
 
 
 def _fake_filter(exc, monkeypatch):

@@ -50,7 +50,7 @@ def test_omp_num_threads_gives_identical_bytes(bundle, tmp_path):
     for threads in ("1", "2"):
         out = tmp_path / f"omp{threads}"
         env = {**os.environ, "OMP_NUM_THREADS": threads}
-        proc = subprocess.run([sys.executable, "-m", "clearsplat.cli", "filter", str(bundle),
+        proc = subprocess.run([sys.executable, "-m", "clearsplat", "filter", str(bundle),
                                "--out", str(out)], env=env, capture_output=True, text=True,
                               timeout=120)
         assert proc.returncode == 0, proc.stderr

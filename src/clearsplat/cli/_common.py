@@ -1,0 +1,91 @@
+"""Helpers shared by the commands: progress bar, FilterConfig from options, warnings."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import sys
+
+from ..errors import ClearsplatError
+
+__all__ = ["Bar", "add_config_args", "config_from_args", "sigterm_as_interrupt", "warn",
+           "one_line"]
+
+
+class Bar:
+    """A one-line progress bar on stderr (plain lines when stderr is not a terminal).
+
+    Called as ``bar(stage, done, total)``, the signature of the library's ``progress=``.
+    """
+
+    def __init__(self, stream=sys.stderr):
+        self.stream = stream
+        self.tty = self.stream.isatty()
+        self.last = None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.tty:
+            width = 24
+            fill = int(width * done / max(total, 1))
+            self.stream.write(f"\r  {stage:<11} [{'#' * fill}{'.' * (width - fill)}] "
+                              f"{done}/{total}")
+            if done >= total:
+                self.stream.write("\n")
+            self.stream.flush()
+        elif done >= total and stage != self.last:
+            self.stream.write(f"  {stage}: {total}/{total}\n")
+            self.last = stage
+
+
+def config_from_args(args):
+    """The :class:`~clearsplat.FilterConfig` that ``--preset``, ``--features``, ``--set`` name."""
+    from ..bench import parse_value
+    from ..filter import FilterConfig
+
+    overrides = {}
+    for item in args.set or []:
+        if "=" not in item:
+            raise ClearsplatError(f"expected KEY=VALUE, got {item!r}", field="--set")
+        k, v = item.split("=", 1)
+        value = parse_value(v.strip())
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ClearsplatError(f"non-finite value in {item!r}", field="--set")
+        overrides[k.strip().replace("-", "_")] = value
+    if getattr(args, "features", None):
+        overrides["features"] = args.features
+    if getattr(args, "checkpoint", None):
+        overrides["checkpoint"] = args.checkpoint
+    return FilterConfig.preset(args.preset).replace(**overrides)
+
+
+def add_config_args(p) -> None:
+    p.add_argument("--preset", default="default", help="'default' or 'paper' (default: default)")
+    p.add_argument("--features", help="feature extractor: local, rgb, dinov2, dinov3")
+    p.add_argument("--checkpoint", help="local DINO checkpoint directory or cached model id")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a FilterConfig field, e.g. --set verify_base=full (repeatable)")
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    """Turn SIGTERM into KeyboardInterrupt so that cleanup runs (main thread only)."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except (ValueError, AttributeError):      # not the main thread
+        old = None
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+
+
+def one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())
+
+
+def warn(message: str) -> None:
+    print("clearsplat: warning: " + " ".join(str(message).split()), file=sys.stderr)
