@@ -415,3 +415,40 @@ def test_bad_input_raises():
         view.rerender(view.render().rgb, keep=None, tiles=np.array([0]))
     with pytest.raises(ClearsplatError, match="tiles_list"):
         view.rerender_tiles(keep=None, removals=[np.array([1])], tiles_list=[])
+
+
+# -- package layers ---------------------------------------------------------------------------
+def _imports(path):
+    """Modules of clearsplat a source file imports (anywhere in it), as dotted names."""
+    import ast
+    import pathlib
+    root = pathlib.Path(__import__("clearsplat").__file__).parent
+    rel = path.relative_to(root.parent).with_suffix("")
+    pkg = list(rel.parts[:-1]) if rel.name != "__init__" else list(rel.parts[:-1])
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = pkg[:len(pkg) - node.level + 1]
+            mod = ".".join(base + ([node.module] if node.module else []))
+            out.add(mod)
+            out.update(f"{mod}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("clearsplat"):
+            out.add(node.module)
+    return out
+
+
+def test_render_layers_point_down_and_scene_imports_neither_io_nor_render():
+    import pathlib
+    import clearsplat
+    root = pathlib.Path(clearsplat.__file__).parent
+    below = {"_kernels": set(), "base": {"_kernels"}, "native": {"_kernels", "base"},
+             "gsplat": {"_kernels", "base", "native"},
+             "api": {"_kernels", "base", "native", "gsplat"}}
+    for name, allowed in below.items():
+        inside = {m.split(".")[2] for m in _imports(root / "render" / f"{name}.py")
+                  if m.startswith("clearsplat.render.")}
+        assert inside <= allowed, (name, inside - allowed)
+    for low in ("scene.py", "cameras.py", "errors.py"):
+        up = {m for m in _imports(root / low)
+              if m.split(".")[1:2] and m.split(".")[1] in ("io", "render", "filter", "adapters")}
+        assert not up, (low, up)

@@ -231,8 +231,20 @@ class Scene:
 
         See :func:`clearsplat.io.save_scene`.
         """
-        from .io import save_scene
-        save_scene(self, path, overwrite=overwrite)
+        if _bundle_writer is None:       # only when clearsplat.io was never imported
+            raise ClearsplatError("no bundle writer: import clearsplat.io first", field="path")
+        _bundle_writer(self, path, overwrite=overwrite)
+
+
+#: ``clearsplat.io.save_scene``, set by :mod:`clearsplat.io.bundle` when it is imported (which
+#: ``import clearsplat`` does): io sits above this module, so it is never imported from here.
+_bundle_writer = None
+
+
+def register_bundle_writer(writer) -> None:
+    """Set the function :meth:`Scene.save` calls, ``writer(scene, path, overwrite=...)``."""
+    global _bundle_writer
+    _bundle_writer = writer
 
 
 def _f32(a) -> np.ndarray:

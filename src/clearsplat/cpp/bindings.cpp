@@ -1,5 +1,5 @@
 // Python bindings for the native core: one function per kernel. Defaults, validation and
-// conversions live in Python (clearsplat/_render.py); the checks here only guard memory.
+// conversions live in Python (clearsplat/render/_kernels.py); the checks here only guard memory.
 // Every kernel runs without the GIL.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
-from ..scene import Scene
+from ..scene import Scene, register_bundle_writer
 from .images import read_image, write_image
 from .ply import RAW_PREFIX, atomic_write_bytes, read_ply, write_ply
 
@@ -550,3 +550,6 @@ def swap_into_place(src, dest) -> None:
 
 def _fresh_name(dest: Path, what: str) -> Path:
     return dest.with_name(f".{dest.name}.{what}-{secrets.token_hex(6)}")
+
+
+register_bundle_writer(save_scene)
