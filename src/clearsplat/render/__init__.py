@@ -11,9 +11,10 @@ Layers, each importing only those below it::
 Every convention is on one page, ``docs/conventions.md`` ("Rasterization").
 """
 
+from ..scene import RenderSettings
 from .api import contributions, prepare, render, render_batch
 from .base import TILE, Contributions, RenderResult, TilePatch
 from .native import PreparedView
 
 __all__ = ["RenderResult", "Contributions", "TilePatch", "PreparedView", "render",
-           "render_batch", "contributions", "prepare", "TILE"]
+           "render_batch", "contributions", "prepare", "TILE", "RenderSettings"]

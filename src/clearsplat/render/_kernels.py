@@ -49,8 +49,10 @@ def _expect(a: np.ndarray, shape: tuple, name: str) -> None:
 
 
 def project(means, scales, quats, opacities, sh, keep, world_to_camera, K, position,
-            width: int, height: int, near: float, num_threads: int):
-    """Project, cull and sort front to back.
+            width: int, height: int, near: float, num_threads: int, *, eps2d: float = 0.3,
+            antialiased: bool = False, radius_clip: float = 0.0):
+    """Project, cull and sort front to back (``eps2d``, ``antialiased``, ``radius_clip`` as in
+    :class:`clearsplat.scene.RenderSettings`).
 
     Returns
     -------
@@ -77,7 +79,7 @@ def project(means, scales, quats, opacities, sh, keep, world_to_camera, K, posit
     intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dtype=np.float64)
     return _core.project(means, scales, quats, opacities, sh, keep, view, intrinsics,
                          _c(position, np.float64), int(width), int(height), float(near),
-                         int(num_threads))
+                         float(eps2d), bool(antialiased), float(radius_clip), int(num_threads))
 
 
 def bin_tiles(rects, grid_w: int, grid_h: int, num_threads: int):

@@ -13,16 +13,17 @@ from typing import Sequence
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
+from ..scene import RenderSettings
 from .base import (Contributions, RenderResult, _check_background, _check_camera,
-                   _check_gaussians, _check_keep, _check_near, _gaussians)
+                   _check_gaussians, _check_keep, _check_near, _check_settings, _gaussians)
 from .gsplat import render_gsplat
 from .native import PreparedView, check_threads, prepare_view
 
 __all__ = ["render", "render_batch", "contributions", "prepare"]
 
 
-def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | None = None
-            ) -> PreparedView:
+def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | None = None,
+            settings: RenderSettings | None = None) -> PreparedView:
     """Project, bin and depth-sort a scene for one camera, for repeated (subset) renders.
 
     Parameters
@@ -33,6 +34,9 @@ def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | Non
         Gaussians with camera z below this are culled.
     num_threads : int, optional
         Threads for this view's kernels (all cores by default); results do not depend on it.
+    settings : RenderSettings, optional
+        How to rasterize (classic or antialiased, eps2d, radius clip, SH degree); by default
+        the scene's :attr:`~clearsplat.Scene.render_settings` (classic 3DGS for Gaussians).
 
     Returns
     -------
@@ -41,11 +45,12 @@ def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | Non
     g = _gaussians(scene)
     _check_gaussians(g)
     return prepare_view(g, _check_camera(camera), None, _check_near(near),
-                        check_threads(num_threads))
+                        check_threads(num_threads), _check_settings(settings, scene))
 
 
 def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near: float = 0.01,
-           num_threads: int | None = None, device: str = "cpu") -> RenderResult:
+           num_threads: int | None = None, device: str = "cpu",
+           settings: RenderSettings | None = None) -> RenderResult:
     """Render a scene from a camera.
 
     Parameters
@@ -64,6 +69,9 @@ def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near
         ``"cpu"`` (the native rasterizer) or a CUDA device such as ``"cuda"``, rendered through
         ``gsplat.rasterization`` (needs PyTorch with CUDA and gsplat; see
         :func:`clearsplat.render.gsplat.render_gsplat` for the small differences).
+    settings : RenderSettings, optional
+        How to rasterize (classic or antialiased, eps2d, radius clip, SH degree); by default
+        the scene's :attr:`~clearsplat.Scene.render_settings` (classic 3DGS for Gaussians).
 
     Returns
     -------
@@ -81,19 +89,21 @@ def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near
             raise ClearsplatError(f"unknown device {device!r}; expected 'cpu' or 'cuda[:N]'",
                                   field="device")
         return render_gsplat(scene, camera, keep=keep, background=background, near=near,
-                             device=device)
+                             device=device, settings=settings)
     g = _gaussians(scene)
     _check_gaussians(g)
     camera = _check_camera(camera)
     keep = _check_keep(keep, len(g))
     bg = _check_background(background)
-    view = prepare_view(g, camera, keep, _check_near(near), check_threads(num_threads))
+    view = prepare_view(g, camera, keep, _check_near(near), check_threads(num_threads),
+                        _check_settings(settings, scene))
     return view.render(background=bg)
 
 
 def render_batch(scene, cameras: Sequence[Camera], keeps: Sequence | None = None, *,
                  background=(0.0, 0.0, 0.0), near: float = 0.01,
-                 num_threads: int | None = None) -> list[RenderResult]:
+                 num_threads: int | None = None,
+                 settings: RenderSettings | None = None) -> list[RenderResult]:
     """Render many (camera, keep) pairs; equal to calling :func:`render` for each.
 
     Parameters
@@ -102,7 +112,7 @@ def render_batch(scene, cameras: Sequence[Camera], keeps: Sequence | None = None
     cameras : sequence of Camera
     keeps : sequence of ((N,) bool or None), optional
         One per camera.
-    background, near, num_threads
+    background, near, num_threads, settings
         As in :func:`render`.
 
     Returns
@@ -120,12 +130,14 @@ def render_batch(scene, cameras: Sequence[Camera], keeps: Sequence | None = None
     keeps = [_check_keep(k, len(g), f"keeps[{i}]") for i, k in enumerate(keeps)]
     bg = _check_background(background)
     near, threads = _check_near(near), check_threads(num_threads)
-    return [prepare_view(g, c, k, near, threads).render(background=bg)
+    settings = _check_settings(settings, scene)
+    return [prepare_view(g, c, k, near, threads, settings).render(background=bg)
             for c, k in zip(cameras, keeps)]
 
 
 def contributions(scene, camera: Camera, mask, *, keep=None, near: float = 0.01,
-                  num_threads: int | None = None) -> Contributions:
+                  num_threads: int | None = None,
+                  settings: RenderSettings | None = None) -> Contributions:
     """Every ``(pixel, gaussian, alpha * T)`` the compositing adds at the pixels of ``mask``.
 
     Parameters
@@ -136,6 +148,9 @@ def contributions(scene, camera: Camera, mask, *, keep=None, near: float = 0.01,
     keep : (N,) bool, optional
     near : float
     num_threads : int, optional
+    settings : RenderSettings, optional
+        How to rasterize (classic or antialiased, eps2d, radius clip, SH degree); by default
+        the scene's :attr:`~clearsplat.Scene.render_settings` (classic 3DGS for Gaussians).
 
     Returns
     -------
@@ -147,6 +162,7 @@ def contributions(scene, camera: Camera, mask, *, keep=None, near: float = 0.01,
     _check_gaussians(g)
     camera = _check_camera(camera)
     keep = _check_keep(keep, len(g))
-    view = prepare_view(g, camera, keep, _check_near(near), check_threads(num_threads))
+    view = prepare_view(g, camera, keep, _check_near(near), check_threads(num_threads),
+                        _check_settings(settings, scene))
     return view.contributions(mask)
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
-from ..scene import Gaussians, Scene
+from ..scene import SH_COUNTS, Gaussians, RenderSettings, Scene
 from ._kernels import TILE
 
 __all__ = ["TILE", "RenderResult", "Contributions", "TilePatch"]
@@ -94,11 +94,29 @@ def _check_gaussians(g: Gaussians) -> None:
         if arr.shape != shape:
             raise ClearsplatError(f"expected shape {shape}, got {arr.shape}", field=name)
     sh = np.asarray(g.sh)
-    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
-        raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, got {sh.shape}",
-                              field="sh")
+    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in SH_COUNTS:
+        raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, 25, got "
+                              f"{sh.shape}", field="sh")
     if n >= 2**31 - 1:
         raise ClearsplatError(f"at most 2**31 - 2 Gaussians, got {n}", field="means")
+
+
+def _check_settings(settings, scene) -> RenderSettings:
+    """The settings to render with: ``settings``, else the scene's, else classic 3DGS."""
+    if settings is None:
+        return scene.render_settings if isinstance(scene, Scene) else RenderSettings()
+    if not isinstance(settings, RenderSettings):
+        raise ClearsplatError(f"expected RenderSettings, got {type(settings).__name__}",
+                              field="settings")
+    return settings
+
+
+def sh_to_evaluate(g: Gaussians, settings: RenderSettings) -> np.ndarray:
+    """The SH coefficients the renderer evaluates: ``g.sh`` cut to ``settings.sh_degree``."""
+    d = settings.sh_degree
+    if d is None or d >= g.sh_degree:
+        return g.sh
+    return g.sh[:, :(d + 1) ** 2]
 
 
 def _check_camera(camera, field: str = "camera") -> Camera:

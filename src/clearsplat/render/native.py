@@ -19,10 +19,10 @@ import numpy as np
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
-from ..scene import Gaussians
+from ..scene import Gaussians, RenderSettings
 from . import _kernels
 from .base import (TILE, Contributions, RenderResult, TilePatch, _check_background,
-                   _check_indices, _check_keep, _TiledView)
+                   _check_indices, _check_keep, _TiledView, sh_to_evaluate)
 
 __all__ = ["PreparedView", "prepare_view", "check_threads"]
 
@@ -382,10 +382,14 @@ class PreparedView(_TiledView):
 
 
 
-def prepare_view(g: Gaussians, camera: Camera, keep, near: float, num_threads: int) -> PreparedView:
+def prepare_view(g: Gaussians, camera: Camera, keep, near: float, num_threads: int,
+                 settings: RenderSettings | None = None) -> PreparedView:
+    """A :class:`PreparedView` of checked inputs (``keep`` (N,) bool or None)."""
+    s = RenderSettings() if settings is None else settings
     splats, rects, index = _kernels.project(
-        g.means, g.scales, g.quats, g.opacities, g.sh, keep, camera.world_to_camera, camera.K,
-        camera.position, camera.width, camera.height, near, num_threads)
+        g.means, g.scales, g.quats, g.opacities, sh_to_evaluate(g, s), keep,
+        camera.world_to_camera, camera.K, camera.position, camera.width, camera.height, near,
+        num_threads, eps2d=s.eps2d, antialiased=s.antialiased, radius_clip=s.radius_clip)
     rows, cols = -(-camera.height // TILE), -(-camera.width // TILE)
     offsets, lists = _kernels.bin_tiles(rects, cols, rows, num_threads)
     return PreparedView(camera=camera, num_gaussians=len(g), splats=splats, rects=rects,
