@@ -111,16 +111,22 @@ def test_render_device_routes_to_gsplat_or_says_what_is_missing():
 
 
 # -- GsplatView on the CPU through a fake gsplat ----------------------------------------------
-# ``rasterization`` emulated with clearsplat's own CPU rasterizer, in gsplat 1.5.3's layout:
+# ``rasterization`` emulated with clearsplat's own CPU rasterizer (with the render settings the
+# call passes), in the batch layout of one gsplat version: "batched" (1.5.3), "shared_sh" (the
+# development version: SH [N, K, 3] only) or None (1.4-1.5.2: no batch dimensions), with
+# gsplat's AssertionError for what that version refuses. Outputs in gsplat 1.5.3's layout:
 # colours [..., C, H, W, 4] (RGB composited over ``backgrounds``, then the accumulated depth
 # sum z_i a_i T_i), alphas [..., C, H, W, 1], meta with means2d [..., C, N, 2], radii
 # [..., C, N, 2] int32 (0 where culled) and depths [..., C, N]. It checks the arguments the
 # GPU path relies on and takes its cameras from a registry keyed by the float32 view matrix and
 # intrinsics it must receive, so a camera-to-world matrix (or a transposed one) finds nothing.
 class FakeGsplat:
-    def __init__(self):
+    def __init__(self, layout="batched", settings=None):
+        from clearsplat import RenderSettings
         self.cameras = {}
-        self.calls = []          # batch shape of each call
+        self.calls = []          # batch shape of each call (but the batch-layout probe)
+        self.layout = layout
+        self.settings = RenderSettings() if settings is None else settings   # expected
 
     @staticmethod
     def _key(viewmat, K, width, height):
@@ -135,16 +141,40 @@ class FakeGsplat:
                       height, near_plane, sh_degree, packed, tile_size, eps2d, radius_clip,
                       backgrounds, render_mode, rasterize_mode):
         import torch
-        assert (packed, tile_size, eps2d, radius_clip) == (False, 16, 0.3, 0.0)
-        assert (render_mode, rasterize_mode) == ("RGB+D", "classic")
+        from clearsplat import RenderSettings
         batch = tuple(means.shape[:-2])
         n, c = means.shape[-2], viewmats.shape[-3]
-        assert (sh_degree + 1) ** 2 == colors.shape[-2]
+        probe = means.shape[-2:] == (1, 3) and width == 16 and height == 16 and batch == (2,)
+        if probe:
+            # The batch-layout probe (one Gaussian, two renders of a 16x16 view); not counted.
+            self.cameras.setdefault(self._key(viewmats[0, 0], Ks[0, 0], 16, 16), Camera(
+                K=Ks[0, 0].numpy(), camera_to_world=np.linalg.inv(viewmats[0, 0].numpy()),
+                width=16, height=16))
+        else:
+            assert (packed, tile_size, render_mode) == (False, 16, "RGB+D")
+            s = self.settings
+            assert (eps2d, radius_clip) == (s.eps2d, s.radius_clip)
+            assert rasterize_mode == ("antialiased" if s.antialiased else "classic")
+            k = colors.shape[-2]
+            assert sh_degree == min(int(np.sqrt(k)) - 1, 4 if s.sh_degree is None else s.sh_degree)
+        # What each gsplat version accepts (its shape assertions).
+        if self.layout is None:
+            assert means.shape == (n, 3) and viewmats.shape == (c, 4, 4)
+        if self.layout == "shared_sh":
+            assert colors.dim() == 3 and colors.shape[0] == n, colors.shape
+        if self.layout == "batched":
+            assert colors.shape[:-2] == batch + (n,), colors.shape
+        assert (sh_degree + 1) ** 2 <= colors.shape[-2]
         assert opacities.shape == batch + (n,) and viewmats.shape == batch + (c, 4, 4)
         assert backgrounds.shape == batch + (c, 3)
-        self.calls.append(batch)
+        if not probe:
+            self.calls.append(batch)
+        if colors.dim() == 3:
+            colors = colors.expand(batch + tuple(colors.shape))
         flat = [t.reshape((-1,) + tuple(t.shape[len(batch):])).numpy()
                 for t in (means, quats, scales, opacities, colors, viewmats, Ks, backgrounds)]
+        settings = RenderSettings(antialiased=rasterize_mode == "antialiased", eps2d=eps2d,
+                                  radius_clip=radius_clip, sh_degree=sh_degree)
         b = flat[0].shape[0]
         out_c = np.zeros((b, c, height, width, 4), np.float32)
         out_a = np.zeros((b, c, height, width, 1), np.float32)
@@ -156,7 +186,7 @@ class FakeGsplat:
                           opacities=flat[3][i], sh=flat[4][i])
             for j in range(c):
                 cam = self.cameras[self._key(flat[5][i, j], flat[6][i, j], width, height)]
-                pv = prepare(g, cam, near=near_plane)
+                pv = prepare(g, cam, near=near_plane, settings=settings)
                 r = pv.render(background=flat[7][i, j])
                 out_c[i, j, ..., :3] = r.rgb
                 out_c[i, j, ..., 3] = r.depth * r.alpha
@@ -177,14 +207,17 @@ class FakeGsplat:
                 torch.from_numpy(out_a.reshape(shape + (height, width, 1))), meta)
 
 
-@pytest.fixture
-def fake_gsplat(monkeypatch):
-    pytest.importorskip("torch")
-    fake = FakeGsplat()
+def _install(monkeypatch, fake):
     module = types.ModuleType("gsplat")
     module.rasterization = fake.rasterization
     monkeypatch.setitem(sys.modules, "gsplat", module)
     return fake
+
+
+@pytest.fixture
+def fake_gsplat(monkeypatch):
+    pytest.importorskip("torch")
+    return _install(monkeypatch, FakeGsplat())
 
 
 def _world(seed=0, n=500, sh_degree=2):
@@ -561,3 +594,40 @@ def test_filter_on_gpu(gpu_views):
     both = (cpu.removed & gpu.removed).sum()
     either = (cpu.removed | gpu.removed).sum()
     assert cpu.removed.sum() > 0 and both / either >= 0.9
+
+
+@pytest.mark.parametrize("layout", [None, "shared_sh", "batched"])
+@pytest.mark.parametrize("settings", [None, "aa"])
+def test_every_batch_layout_and_the_scene_settings_reach_gsplat(monkeypatch, layout, settings):
+    # gsplat 1.4-1.5.2 (no batch dims), the development version (SH shared) and 1.5.3: the
+    # view finds what the installed gsplat takes, renders the scene's settings, equals the CPU.
+    pytest.importorskip("torch")
+    from clearsplat import RenderSettings, Scene
+    from clearsplat.render import _gsplat_call
+    from clearsplat.render.gsplat import prepare_gsplat_views
+    s = RenderSettings(antialiased=True, eps2d=0.1, radius_clip=0.1) if settings else None
+    fake = _install(monkeypatch, FakeGsplat(layout, s))
+    g, cams = _world(3, n=300, sh_degree=4 if settings else 2)
+    g.scales[::2] *= 0.05
+    fake.add(*cams)
+    scene = Scene(g, np.zeros(len(g), np.int32), None, cams,
+                  render_settings=s or RenderSettings())
+    views = prepare_gsplat_views(scene, cams, device="cpu")
+    rng = np.random.default_rng(2)
+    keeps = [None, rng.uniform(size=len(g)) > 0.3, rng.uniform(size=len(g)) > 0.6]
+    for gv, cam in zip(views, cams):
+        pv = prepare(scene, cam)
+        fake.calls.clear()
+        many = gv.render_many(keeps)
+        assert fake.calls == ([()] * 3 if layout is None else [(3,)])
+        for keep, r in zip(keeps, many):
+            _assert_same(r, pv.render(keep=keep))
+        for x, y in zip(gv.render_pair(keep=keeps[1]), pv.render_pair(keep=keeps[1])):
+            _assert_same(x, y)
+        region = np.ones((cam.height, cam.width), bool)
+        np.testing.assert_array_equal(gv.contributions(region).weight,
+                                      pv.contributions(region).weight)
+    assert _gsplat_call._layouts[fake.rasterization] == layout
+    if settings:
+        classic = prepare(g, cams[0]).render()
+        assert np.abs(classic.rgb - views[0].render().rgb).max() > 1e-2
