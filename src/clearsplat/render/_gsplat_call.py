@@ -6,7 +6,8 @@ current development version, but its leading batch dimensions differ:
 - 1.4.x, 1.5.0-1.5.2: none (``means`` must be ``[N, 3]``, ``viewmats`` ``[C, 4, 4]``);
 - 1.5.3: ``[..., N, 3]`` for everything, SH coefficients included (``[..., N, K, 3]``);
 - the development version (1.6): ``[..., N, 3]`` for the Gaussians, but SH coefficients must be
-  ``[N, K, 3]``, shared by the batch.
+  ``[N, K, 3]``, shared by the batch (checked in its C++ code: a RuntimeError, not an
+  AssertionError).
 
 :func:`batch_layout` finds out which the installed gsplat accepts with one tiny call (kept per
 ``rasterization`` function); without batch support the renders run one call each. The render
@@ -103,6 +104,10 @@ def accepts(torch, rasterization, layout: str, device) -> bool:
                                       **probe_args(torch, layout, device))
     except (AssertionError, ValueError, TypeError):
         return False
+    except RuntimeError as e:         # a shape check in gsplat's C++ code (TORCH_CHECK)
+        if "shape" in str(e):
+            return False
+        raise
     return tuple(colors.shape) == (2, 1, 16, 16, 4) and tuple(alphas.shape) == (2, 1, 16, 16, 1)
 
 
