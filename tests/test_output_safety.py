@@ -176,3 +176,63 @@ def test_check_output_folder_api(tmp_path):
     with pytest.raises(ClearsplatError, match="would replace an input"):
         check_output_folder(tmp_path, inputs=[tmp_path / "in"], force=True)
     check_output_folder(tmp_path / "new", inputs=[tmp_path / "in"])
+
+
+# ------------------------------------------------------------------------------------------------
+# clearsplat demo: the same temporary-folder-then-swap writing
+# ------------------------------------------------------------------------------------------------
+DEMO = ["demo", "--views", "3", "--resolution", "32x48"]
+
+
+@pytest.mark.parametrize("views", ["0", "1", "-2"])
+def test_demo_with_too_few_views_leaves_nothing(home, capsys, views):
+    before = state(home)
+    code, _, err = cli(["demo", "--out", "new/demo", "--views", views], capsys)
+    assert code == 2
+    one_error(err, "--views", "at least 2")
+    assert state(home) == before
+
+
+def test_demo_refuses_what_filter_refuses(home, capsys):
+    before = state(home)
+    for out, extra, fragment in (("photos", ["--force"], "clearsplat did not write it"),
+                                 ("notes.txt", ["--force"], "names a file"),
+                                 ("B", ["--force"], "not empty")):
+        code, _, err = cli([*DEMO, "--out", out, *extra], capsys)
+        assert code == 2
+        one_error(err, out, fragment)
+    assert state(home) == before
+
+
+def test_demo_replaces_its_own_output_whole(home, capsys):
+    code, stdout, err = cli([*DEMO, "--out", "demo"], capsys)
+    assert code == 0, err
+    first = sorted(p.name for p in (home / "demo").iterdir())
+    assert MARKER in first and "summary.txt" in first and "test_00_filtered.png" in first
+    assert "pictures: demo " in stdout
+    assert "building a synthetic 'object' world" in stdout and " a object" not in stdout
+    (home / "demo" / "test_07_filtered.png").write_bytes(b"stale picture of an earlier run")
+    before = state(home)
+    code, _, err = cli([*DEMO, "--out", "demo"], capsys)
+    assert code == 2
+    one_error(err, "demo", "--force")
+    assert state(home) == before
+    code, _, err = cli([*DEMO, "--out", "demo", "--force", "--seed", "1"], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in (home / "demo").iterdir()) == first     # no stale picture
+    assert sorted(p.name for p in home.iterdir()) == sorted(
+        ["B", "notes.txt", "photos", "link-to-B", "demo"])
+    assert (home / "demo" / "report" / "report.html").is_file()
+
+
+def test_demo_failure_leaves_nothing(home, capsys, monkeypatch):
+    import clearsplat.demo
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(clearsplat.demo, "write_report", broken)
+    before = state(home)
+    code, _, err = cli([*DEMO, "--out", "new/demo"], capsys)
+    assert code == 1
+    assert "No space left on device" in err
+    assert state(home) == before

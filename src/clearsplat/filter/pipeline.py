@@ -359,7 +359,8 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, co
         s = totals[c.index].score
         c.scores["individual"] = s
         if c.gaussians.size == 0:
-            c.reason = "no Gaussians in region"
+            c.reason = ("no Gaussians in region" if config.refine == "none"
+                        else "no Gaussians left: none survived refinement")
         elif s > config.min_score:
             c.reason = "passed individual test"
         else:
