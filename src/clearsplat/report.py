@@ -9,7 +9,6 @@ and the configuration, gives the units of the scores, and repeats the legend und
 
 from __future__ import annotations
 
-import dataclasses
 import html
 import os
 
@@ -99,19 +98,6 @@ SCORE_UNITS = ("Scores are the change-weighted mean reduction of the per-pixel L
                "input. A test passes above min_score.")
 
 
-def _config_text(config) -> str:
-    """The preset the config equals, or the default plus the fields that differ from it."""
-    from .filter import PRESETS
-    for name, preset in PRESETS.items():
-        if preset == config:
-            return f"preset {name!r}"
-    base = min(PRESETS, key=lambda n: sum(getattr(PRESETS[n], f.name) != getattr(config, f.name)
-                                          for f in dataclasses.fields(config)))
-    changes = [f"{f.name}={getattr(config, f.name)!r}" for f in dataclasses.fields(config)
-               if getattr(PRESETS[base], f.name) != getattr(config, f.name)]
-    return f"preset {base!r} with " + ", ".join(changes)
-
-
 def write_report(out_dir: str, scene, result, *, source: str | None = None) -> str:
     """Write the per-view pictures and ``report.html`` into ``out_dir``; return the HTML path.
 
@@ -177,7 +163,7 @@ def write_report(out_dir: str, scene, result, *, source: str | None = None) -> s
              "<h1>clearsplat filter report</h1>",
              f"<p>Input: {html.escape(source or 'an in-memory scene', quote=False)} "
              f"({len(scene):,} Gaussians, {scene.num_views} views).<br>"
-             f"Configuration: {html.escape(_config_text(result.config), quote=False)} "
+             f"Configuration: {html.escape(result.config.describe(), quote=False)} "
              f"(every field in <code>summary.json</code>).</p>",
              f"<p><b>{summary['removed']:,} of {summary['gaussians']:,} Gaussians removed</b>; "
              f"{summary['accepted']} of {len(summary['candidates'])} candidate regions accepted "

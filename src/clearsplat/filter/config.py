@@ -259,6 +259,18 @@ class FilterConfig:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    def describe(self) -> str:
+        """The preset this config equals (``"preset 'default'"``), or the nearest preset and
+        the fields that differ from it (``"preset 'default' with eta=0.4"``)."""
+        fields = [f.name for f in dataclasses.fields(self)]
+        diff = {name: [k for k in fields if getattr(p, k) != getattr(self, k)]
+                for name, p in PRESETS.items()}
+        name = min(diff, key=lambda n: len(diff[n]))
+        if not diff[name]:
+            return f"preset {name!r}"
+        return f"preset {name!r} with " + ", ".join(f"{k}={getattr(self, k)!r}"
+                                                    for k in diff[name])
+
 
 def _unit(**kw) -> FieldSpec:
     return FieldSpec("number", 0.0, 1.0, **kw)
