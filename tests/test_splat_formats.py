@@ -80,7 +80,7 @@ def test_splat_bad_size(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # .spz
 # ------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("k", [1, 4, 9, 16])
+@pytest.mark.parametrize("k", [1, 4, 9, 16, 25])
 def test_spz_round_trip(tmp_path, k):
     g = random_gaussians(k=k, seed=k)
     write_spz(tmp_path / "a.spz", g)

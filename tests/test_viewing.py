@@ -395,18 +395,26 @@ def test_viewer_in_headless_chromium(filtered, tmp_path):
     keep = np.ones(len(scene), bool)
     keep[::2] = False                    # half the Gaussians, everywhere: shown in highlight
     viewer = serve(scene, keep=keep, port=_free_port(), show="removed")
-    shot = tmp_path / "shot.png"
+    target = np.array(REMOVED_COLOUR) * 255
+
+    def splat_pixels(img):
+        # the highlight colour blended over the dark background (its hue kept)
+        r, g, b = img[..., 0], img[..., 1], img[..., 2]
+        return (r > 60) & (b > 0.5 * r * target[2] / target[0]) & (g < 0.45 * r)
+
+    fraction = 0.0
     try:
-        subprocess.run([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
-                        "--enable-unsafe-swiftshader", "--hide-scrollbars",
-                        f"--user-data-dir={tmp_path / 'profile'}", "--window-size=800,600",
-                        "--virtual-time-budget=8000", f"--screenshot={shot}", viewer.url],
-                       check=True, timeout=120, capture_output=True)
+        # software WebGL on a busy machine can be slow: wait longer on each try
+        for attempt, budget in enumerate((8000, 20000, 45000)):
+            shot = tmp_path / f"shot{attempt}.png"
+            subprocess.run([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
+                            "--enable-unsafe-swiftshader", "--hide-scrollbars",
+                            f"--user-data-dir={tmp_path / 'profile'}", "--window-size=800,600",
+                            f"--virtual-time-budget={budget}", f"--screenshot={shot}",
+                            viewer.url], check=True, timeout=180, capture_output=True)
+            fraction = splat_pixels(png(shot).astype(int)).mean()
+            if fraction > 0.02:
+                break
     finally:
         viewer.stop()
-    img = png(shot).astype(int)
-    target = np.array(REMOVED_COLOUR) * 255
-    # splat pixels: the highlight colour blended over the dark background (hue kept)
-    r, g, b = img[..., 0], img[..., 1], img[..., 2]
-    pink = (r > 60) & (b > 0.5 * r * target[2] / target[0]) & (g < 0.45 * r)
-    assert pink.mean() > 0.02, f"only {100 * pink.mean():.2f} % of the screenshot shows splats"
+    assert fraction > 0.02, f"only {100 * fraction:.2f} % of the screenshot shows splats"

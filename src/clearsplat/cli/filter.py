@@ -54,7 +54,7 @@ def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool
     if source is not None:
         cameras, image_paths = load_cameras(source)
         save_bundle_cameras(folder, cameras, image_paths, located_at=located_at,
-                            copy_images=copy_images)
+                            copy_images=copy_images, render=scene.render_settings)
     if report:
         write_report(os.path.join(folder, "report"), scene, result)
 

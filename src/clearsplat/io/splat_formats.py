@@ -52,7 +52,8 @@ _SQRT1_2 = np.float32(0.7071067811865476)
 # RDF -> RUB (x, -y, -z): sign of each SH coefficient of bands 1..3 (the reference's table
 # with x = 1, y = z = -1), positions and quaternion x, y, z.
 _SPZ_FLIP_P = np.array([1.0, -1.0, -1.0], np.float32)
-_SPZ_FLIP_SH = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], np.float32)
+_SPZ_FLIP_SH = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1,
+                         -1, 1, -1, 1, 1, -1, 1, -1, -1], np.float32)
 
 
 def _u8(x) -> np.ndarray:
@@ -208,9 +209,9 @@ def read_spz(path) -> Gaussians:
     magic, version, n, degree, bits, flags, _ = _SPZ_HEADER.unpack_from(raw)
     if magic != _SPZ_MAGIC:
         raise ClearsplatError(f"bad magic {magic:#x}", path=path, field="header")
-    if version not in (2, 3) or degree > 3:
+    if version not in (2, 3) or degree > 4:
         raise ClearsplatError(f"version {version} with SH degree {degree} is not supported "
-                              "(versions 2 and 3, degree <= 3)", path=path, field="header")
+                              "(versions 2 and 3, degree <= 4)", path=path, field="header")
     k = (degree + 1) ** 2
     rot_bytes = 4 if version >= 3 else 3
     sizes = [9 * n, n, 3 * n, 3 * n, rot_bytes * n, 3 * (k - 1) * n]
