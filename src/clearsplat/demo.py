@@ -23,8 +23,9 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
     """Build, reconstruct and filter one cluttered scene; write pictures into ``out_dir``.
 
     Returns a dict with the table's numbers. ``out_dir`` receives ``test_XX_{baseline,
-    filtered,reference,truth}.png``, the filter report (``report/report.html``) and
-    ``summary.txt``.
+    filtered,reference,truth}.png``, the filter report (``report/report.html``) with a before |
+    after video (``report/video.mp4``), the scene bundle (``scene/``), the filter's output
+    bundle (``filtered/``, as ``clearsplat filter`` writes it) and ``summary.txt``.
     """
     config = config or FilterConfig()
     os.makedirs(out_dir, exist_ok=True)
@@ -45,7 +46,9 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
         for name, r in (("baseline", before[t].rgb), ("filtered", after[t].rgb),
                         ("reference", ref[t].rgb), ("truth", world.test_images[t])):
             write_png(os.path.join(out_dir, f"test_{t:02d}_{name}.png"), r)
-    write_report(os.path.join(out_dir, "report"), scene, result)
+    video = _save_bundles_and_video(out_dir, scene, result, progress=progress)
+    write_report(os.path.join(out_dir, "report"), scene, result,
+                 video=os.path.relpath(video, os.path.join(out_dir, "report")))
     stats = removal_stats(result.removed, distractor_truth(scene, world))
 
     def mean(metric, renders):
@@ -77,9 +80,38 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
         f"{numbers['verification_s']:.2f} s; whole demo {numbers['total_s']:.1f} s",
         f"pictures: {out_dir} (test_*_baseline/filtered/reference/truth.png, "
         f"report/report.html)",
+        f"before | after video: {video}",
+        f"scene bundles: {os.path.join(out_dir, 'scene')} (input), "
+        f"{os.path.join(out_dir, 'filtered')} (filter output); look at them in 3D with",
+        f"  clearsplat view {os.path.join(out_dir, 'scene')} --filtered "
+        f"{os.path.join(out_dir, 'filtered')}",
     ])
     with open(os.path.join(out_dir, "summary.txt"), "w") as f:
         f.write(table + "\n")
     log("")
     log(table)
     return numbers
+
+
+def _save_bundles_and_video(out_dir, scene, result, *, progress=None):
+    """``scene/`` and ``filtered/`` bundles, and ``report/video.mp4``; returns the video's path."""
+    import json
+
+    from .io import load_cameras, save_bundle_cameras, save_scene, write_ply
+    from .video import make_video
+
+    source = os.path.join(out_dir, "scene")
+    save_scene(scene, source, overwrite=True)
+    filtered = os.path.join(out_dir, "filtered")
+    os.makedirs(filtered, exist_ok=True)
+    kept = scene.subset(result.keep)
+    write_ply(os.path.join(filtered, "gaussians.ply"), kept.gaussians, view_id=kept.view_id,
+              pixel_id=kept.pixel_id)
+    np.save(os.path.join(filtered, "removed.npy"), np.ascontiguousarray(result.removed, bool))
+    with open(os.path.join(filtered, "summary.json"), "w") as f:
+        json.dump(result.summary(), f, indent=1)
+    cameras, images = load_cameras(source)
+    save_bundle_cameras(filtered, cameras, images, render=scene.render_settings)
+    os.makedirs(os.path.join(out_dir, "report"), exist_ok=True)
+    return make_video(os.path.join(out_dir, "report", "video.mp4"), scene, result.keep,
+                      num_frames=48, progress=progress)

@@ -48,13 +48,15 @@ def write_png(path: str, img: np.ndarray) -> None:
     Image.fromarray(to_uint8(img)).save(path)
 
 
-def write_report(out_dir: str, scene, result) -> str:
+def write_report(out_dir: str, scene, result, *, video: str | None = None) -> str:
     """Write the per-view pictures and ``report.html`` into ``out_dir``; return the HTML path.
 
     Parameters
     ----------
     scene : Scene
     result : FilterResult
+    video : str, optional
+        A before | after video (``.mp4`` or ``.gif``), relative to ``out_dir``, shown at the top.
     """
     from .render import render
 
@@ -91,12 +93,14 @@ def write_report(out_dir: str, scene, result) -> str:
     summary = result.summary()
     parts = ["<!doctype html><meta charset='utf-8'><title>clearsplat report</title>",
              "<style>body{font-family:sans-serif;margin:1.5em}img{width:19%;margin:0.2%}"
-             "h2{margin-top:1.2em;font-size:1.05em}td,th{padding:2px 8px;text-align:right}</style>",
+             "h2{margin-top:1.2em;font-size:1.05em}td,th{padding:2px 8px;text-align:right}"
+             ".video video,.video img{width:min(100%,1100px)}</style>",
              "<h1>clearsplat filter report</h1>",
              f"<p>{summary['removed']} of {summary['gaussians']} Gaussians removed; "
              f"{summary['accepted']} of {len(summary['candidates'])} candidates accepted. "
              f"Proposal {summary['timings'].get('proposal', 0):.2f} s, verification "
              f"{summary['timings'].get('verification', 0):.2f} s.</p>",
+             *_video_html(video),
              "<p>Columns: input &middot; exclusion render R<sub>i</sub><sup>-i</sup> &middot; "
              "similarity (blue low, yellow high) &middot; proposals (red: range 1, yellow: range "
              "2, dimmed: unsupported) &middot; verdict (green: accepted, blue: rejected)</p>"]
@@ -117,3 +121,13 @@ def write_report(out_dir: str, scene, result) -> str:
     with open(path, "w") as f:
         f.write("\n".join(parts))
     return path
+
+
+def _video_html(video) -> list:
+    if not video:
+        return []
+    src = html.escape(str(video).replace(os.sep, "/"))
+    tag = (f"<img src='{src}' alt='before | after'>" if src.lower().endswith(".gif") else
+           f"<video src='{src}' controls autoplay loop muted playsinline></video>")
+    return ["<h2>Before | after, along a path through the input cameras</h2>",
+            f"<div class='video'>{tag}</div>"]

@@ -183,12 +183,11 @@ def _populate(server, scene, keep, modes, show, image_width) -> Viewer:
             rgb = np.broadcast_to(np.asarray(REMOVED_COLOUR, np.float32), rgb.shape).copy()
         parts[name] = dict(centers=centres[m], covariances=cov[m], rgbs=rgb, opacities=opac[m])
 
-    # frustum size: a tenth of the spread of the cameras (or of the scene, for one camera)
+    # frustum size: a twentieth of the cameras' distance to the scene's centre
     pos = np.stack([c.position for c in cams])
-    spread = float(np.linalg.norm(pos - pos.mean(0), axis=1).max()) if len(cams) > 1 else 0.0
-    if spread <= 0 and len(g):
-        spread = float(np.median(np.linalg.norm(g.means - pos[0], axis=1)))
-    scale = 0.15 * spread if spread > 0 else 0.1
+    centre = np.median(g.means, axis=0) if len(g) else pos.mean(0)
+    dist = float(np.median(np.linalg.norm(pos - centre, axis=1)))
+    scale = 0.06 * dist if dist > 0 else 0.1
     frustums = []
     for i, cam in enumerate(cams):
         image = None
@@ -209,10 +208,10 @@ def _populate(server, scene, keep, modes, show, image_width) -> Viewer:
     # the browser starts behind and above input view 0, looking at the scene's centre, so
     # that the Gaussians and the frustums are in sight
     c0 = cams[0]
-    target = np.median(g.means, axis=0) if len(g) else c0.position + c0.camera_to_world[:3, 2]
+    target = centre if len(g) else c0.position + c0.camera_to_world[:3, 2]
     back = c0.position - target
     dist = float(np.linalg.norm(back)) or 1.0
-    eye = c0.position + 0.6 * back + 0.3 * dist * up
+    eye = c0.position + 0.3 * back + 0.2 * dist * up
     server.initial_camera.position = tuple(float(v) for v in eye)
     server.initial_camera.look_at = tuple(float(v) for v in target)
     server.initial_camera.up = tuple(float(v) for v in up)

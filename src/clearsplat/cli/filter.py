@@ -56,7 +56,15 @@ def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool
         save_bundle_cameras(folder, cameras, image_paths, located_at=located_at,
                             copy_images=copy_images, render=scene.render_settings)
     if report:
-        write_report(os.path.join(folder, "report"), scene, result)
+        from ..video import make_video
+        os.makedirs(os.path.join(folder, "report"), exist_ok=True)
+        with warnings.catch_warnings(record=True) as caught:     # the GIF fallback's
+            warnings.simplefilter("always")
+            video = make_video(os.path.join(folder, "report", "video.mp4"), scene,
+                               result.keep, num_frames=48)
+        for w in caught:
+            warn(str(w.message))
+        write_report(os.path.join(folder, "report"), scene, result, video=video.name)
 
 
 def run(args) -> int:
