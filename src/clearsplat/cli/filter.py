@@ -31,11 +31,13 @@ def add_parser(sub) -> None:
 
 
 def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False,
-                  source=None, located_at=None, copy_images: bool = False) -> None:
+                  source: str | None = None, located_at=None,
+                  copy_images: bool = False) -> None:
     """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder).
 
     With ``source`` (the input bundle) the folder is itself a bundle: ``cameras.json`` refers
-    to the input's images (or copies them, ``copy_images``) so that it loads again.
+    to the input's images (or copies them, ``copy_images``) so that it loads again from
+    ``located_at`` (where ``folder`` is moved to; default ``folder``).
     """
     from ..io import load_cameras, save_bundle_cameras, write_ply
     from ..report import write_report
@@ -64,7 +66,8 @@ def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool
                                result.keep, num_frames=48)
         for w in caught:
             warn(str(w.message))
-        write_report(os.path.join(folder, "report"), scene, result, video=video.name)
+        write_report(os.path.join(folder, "report"), scene, result, source=source,
+                     video=video.name)
 
 
 def run(args) -> int:
