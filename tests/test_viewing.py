@@ -418,3 +418,26 @@ def test_viewer_in_headless_chromium(filtered, tmp_path):
     finally:
         viewer.stop()
     assert fraction > 0.02, f"only {100 * fraction:.2f} % of the screenshot shows splats"
+
+
+def test_clicking_a_camera_looks_through_it(filtered):
+    """The frustum's click handler moves the browser camera onto the input camera."""
+    import contextlib
+    from types import SimpleNamespace
+
+    from scipy.spatial.transform import Rotation
+
+    from clearsplat.viewer import _look_through
+    scene = clearsplat.load_scene(filtered[0])
+    cam = scene.cameras[1]
+    frustums = [SimpleNamespace(visible=True) for _ in scene.cameras]
+    browser_camera = SimpleNamespace(fov=None, wxyz=None, position=None)
+    client = SimpleNamespace(camera=browser_camera, atomic=contextlib.nullcontext)
+    fov = 2 * np.arctan(0.5 * cam.height / cam.fy)
+    _look_through(cam, fov, 1, frustums)(SimpleNamespace(client=client))
+    w, x, y, z = browser_camera.wxyz
+    assert np.allclose(Rotation.from_quat([x, y, z, w]).as_matrix(),
+                       cam.camera_to_world[:3, :3])
+    assert np.allclose(browser_camera.position, cam.position)
+    assert browser_camera.fov == fov
+    assert [f.visible for f in frustums] == [True, False, True]
