@@ -441,3 +441,32 @@ def test_clicking_a_camera_looks_through_it(filtered):
     assert np.allclose(browser_camera.position, cam.position)
     assert browser_camera.fov == fov
     assert [f.visible for f in frustums] == [True, False, True]
+
+
+def test_view_command_prints_the_url_and_serves(filtered):
+    """``clearsplat view`` serves on 127.0.0.1, prints where, and stops on Ctrl-C."""
+    pytest.importorskip("viser")
+    import signal
+    import sys
+    import time
+    import urllib.request
+    scene_dir, out = filtered
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "clearsplat", "view", str(scene_dir),
+                             "--filtered", str(out), "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        start = time.monotonic()
+        line = proc.stdout.readline()
+        assert line.startswith(f"clearsplat viewer: http://127.0.0.1:{port}"), line
+        page = urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=30).read()
+        assert b"<html" in page
+        assert time.monotonic() - start < 60
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130

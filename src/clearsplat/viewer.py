@@ -98,7 +98,8 @@ class Viewer:
 
     def stop(self) -> None:
         """Stop the server (its port is free again)."""
-        self.server.stop()
+        with _quiet(True):
+            self.server.stop()
 
 
 def serve(scene, *, keep=None, host: str = "127.0.0.1", port: int = 8080,
@@ -149,7 +150,8 @@ def serve(scene, *, keep=None, host: str = "127.0.0.1", port: int = 8080,
     if show not in modes:
         raise ClearsplatError(f"expected one of {', '.join(modes)}, got {show!r}", field="show")
 
-    server = viser.ViserServer(host=host, port=port, verbose=verbose)
+    with _quiet(not verbose):           # viser prints a banner of its own
+        server = viser.ViserServer(host=host, port=port, verbose=verbose)
     try:
         viewer = _populate(server, scene, keep, modes, show, image_width)
     except BaseException:
@@ -205,16 +207,16 @@ def _populate(server, scene, keep, modes, show, image_width) -> Viewer:
         handle.on_click(_look_through(cam, fov, i, frustums))
         frustums.append(handle)
 
-    # the browser starts behind and above input view 0, looking at the scene's centre, so
-    # that the Gaussians and the frustums are in sight
+    # the browser starts a little behind input view 0, looking the same way: pixel-aligned
+    # Gaussians look right near the input views, and the neighbouring frustums are in sight
     c0 = cams[0]
-    target = centre if len(g) else c0.position + c0.camera_to_world[:3, 2]
-    back = c0.position - target
-    dist = float(np.linalg.norm(back)) or 1.0
-    eye = c0.position + 0.3 * back + 0.2 * dist * up
+    forward = c0.camera_to_world[:3, 2]
+    dist = float(np.linalg.norm(c0.position - centre)) or 1.0
+    eye = c0.position - 0.35 * dist * forward
+    target = c0.position + dist * forward
     server.initial_camera.position = tuple(float(v) for v in eye)
     server.initial_camera.look_at = tuple(float(v) for v in target)
-    server.initial_camera.up = tuple(float(v) for v in up)
+    server.initial_camera.up = tuple(float(v) for v in -c0.camera_to_world[:3, 1])
     server.initial_camera.fov = 2 * math.atan(0.5 * c0.height / c0.fy)
 
     n_removed = 0 if keep is None else int((~keep).sum())
@@ -252,6 +254,12 @@ def _look_through(cam, fov, index, frustums):
             client.camera.wxyz = wxyz
             client.camera.position = position
     return callback
+
+
+def _quiet(on: bool):
+    import contextlib
+    import io
+    return contextlib.redirect_stdout(io.StringIO()) if on else contextlib.nullcontext()
 
 
 def _display_host(host: str) -> str:
