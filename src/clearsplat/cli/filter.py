@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import json
-import os
 import warnings
 
-import numpy as np
-
+from ..batch import write_filter_outputs as write_outputs
 from ..errors import ClearsplatError
 from ._common import Bar, add_config_args, config_from_args, warn
 
@@ -25,26 +22,6 @@ def add_parser(sub) -> None:
                    help="replace an --out folder that an earlier clearsplat run wrote")
     add_config_args(f)
     f.set_defaults(func=run)
-
-
-def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False) -> None:
-    """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder)."""
-    from ..io import write_ply
-    from ..report import write_report
-
-    if keep_all:
-        kept = result.apply(scene)
-        write_ply(os.path.join(folder, "gaussians.ply"), kept.gaussians,
-                  view_id=kept.view_id, pixel_id=kept.pixel_id)
-    else:
-        sub = scene.subset(result.keep)
-        write_ply(os.path.join(folder, "gaussians.ply"), sub.gaussians,
-                  view_id=sub.view_id, pixel_id=sub.pixel_id)
-    np.save(os.path.join(folder, "removed.npy"), np.ascontiguousarray(result.removed, dtype=bool))
-    with open(os.path.join(folder, "summary.json"), "w") as f:
-        json.dump(result.summary(), f, indent=1)
-    if report:
-        write_report(os.path.join(folder, "report"), scene, result)
 
 
 def run(args) -> int:
