@@ -136,6 +136,15 @@ def test_bad_batch_folder(data, tmp_path, capsys):
     assert code == 2 and "would replace an input" in capsys.readouterr().err
 
 
+@needs_ray
+def test_unreachable_address_is_one_line(data, tmp_path, capsys):
+    # before the module's Ray instance starts: a connected process would use that one
+    code = main(["batch", str(data / "scenes" / "a"), "--out", str(tmp_path / "o"),
+                 "--address", f"127.0.0.1:{_free_port()}"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "cannot reach a Ray cluster" in err
+
+
 # ------------------------------------------------------------------------------------------------
 # on a local Ray instance
 # ------------------------------------------------------------------------------------------------
@@ -328,11 +337,3 @@ def test_command_locally_and_on_a_second_ray_node(data, tmp_path):
         left = _ray_processes(temp)
         shutil.rmtree(temp, ignore_errors=True)
     assert left == [], f"Ray processes left running: {left}"
-
-
-@needs_ray
-def test_unreachable_address_is_one_line(data, tmp_path, capsys):
-    code = main(["batch", str(data / "scenes" / "a"), "--out", str(tmp_path / "o"),
-                 "--address", f"127.0.0.1:{_free_port()}"])
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "cannot reach a Ray cluster" in err

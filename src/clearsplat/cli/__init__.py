@@ -19,7 +19,7 @@ from ._common import one_line, sigterm_as_interrupt
 __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: The command modules, in the order ``clearsplat --help`` lists them.
-COMMANDS = ("demo", "filter", "batch", "bench")
+COMMANDS = ("demo", "filter", "batch", "bench", "prepare", "eval")
 
 
 class _Parser(argparse.ArgumentParser):

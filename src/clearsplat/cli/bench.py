@@ -23,6 +23,11 @@ def add_parser(sub) -> None:
                    help="skip the real-image check (Middlebury stereo pair with a pasted object)")
     b.add_argument("--ablation", action="store_true",
                    help="run the ablation of docs/method.md (clearsplat.bench.ABLATIONS)")
+    b.add_argument("--workers", type=int, metavar="N",
+                   help="run the grid's cells as Ray tasks on N local CPUs (default: one "
+                        "after another in this process)")
+    b.add_argument("--address", help="run the grid's cells on this Ray cluster ('auto', "
+                                     "HOST:PORT or ray://HOST:PORT)")
     b.add_argument("--out", default="bench-out", help="output folder (default: %(default)s)")
     add_config_args(b)
     b.set_defaults(func=run)
@@ -52,13 +57,16 @@ def run(args) -> int:
     except ValueError:
         raise ClearsplatError("expected --resolution HxW and comma-separated integers for "
                               "--views and --seeds", field="--resolution/--views/--seeds") from None
+    if args.workers is not None and args.workers < 1:
+        raise ClearsplatError(f"must be at least 1, got {args.workers}", field="--workers")
     t0 = time.perf_counter()
 
     def log(s):
         print("  " + s, file=sys.stderr)
 
     rows = run_suite(families=args.families.split(","), views=views, seeds=seeds,
-                     configs=configs, height=h, width=w, log=log)
+                     configs=configs, height=h, width=w, log=log, workers=args.workers,
+                     address=args.address)
     print(format_tables(rows))
     real = None
     if not args.no_real_check:
