@@ -249,6 +249,22 @@ def test_memory_is_a_ray_resource(data, tmp_path, local_ray, monkeypatch):
     assert s1 >= e0 - 0.05, "two tasks of 60 % of the node's memory ran at once"
 
 
+@needs_ray
+def test_bench_grid_on_ray_gives_the_same_rows(local_ray):
+    from clearsplat.bench import format_tables, run_suite
+    grid = dict(families=("object",), views=(3,), seeds=(0, 1), height=32, width=48)
+    serial = run_suite(**grid)
+    logged = []
+    on_ray = run_suite(**grid, workers=2, log=logged.append)
+    assert sorted(logged) == ["object 3 views seed 0: done", "object 3 views seed 1: done"]
+
+    def strip(rows):
+        return [{k: v for k, v in r.items() if not k.startswith("time_")} for r in rows]
+    assert strip(on_ray) == strip(serial)
+    assert [r["seed"] for r in on_ray] == [0, 1]
+    assert format_tables(on_ray).split("Runtime")[0] == format_tables(serial).split("Runtime")[0]
+
+
 # ------------------------------------------------------------------------------------------------
 # the command, in its own process: a local instance, and a second Ray node joined by --address
 # ------------------------------------------------------------------------------------------------
