@@ -41,6 +41,7 @@ def main() -> None:
     modes = {"serial": {}, "ray-1": {"workers": 1}, "ray-2": {"workers": 2}}
     times = {m: [] for m in modes}
     reference = None
+    load_before = os.getloadavg()[0]
     for _ in range(a.repeats):
         for mode, kw in modes.items():
             t0 = time.perf_counter()
@@ -54,7 +55,8 @@ def main() -> None:
     print(tables.split("\n\nRuntime")[0])
     print(f"\nGrid: {a.families} x views {a.views} x seeds {a.seeds} at {a.resolution} "
           f"({cells} cells); {a.repeats} repeats, alternating; identical rows in every run")
-    print(f"Machine: {platform.machine()}, {os.cpu_count()} CPUs, {platform.platform()}")
+    print(f"Machine: {platform.machine()}, {os.cpu_count()} CPUs, {platform.platform()}; "
+          f"load average {load_before:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
     base = statistics.median(times["ray-1"])
     print(f"{'engine':<8}{'median s':>10}{'min':>8}{'max':>8}{'vs ray-1':>10}")
     for mode, ts in times.items():

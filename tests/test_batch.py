@@ -136,6 +136,18 @@ def test_bad_batch_folder(data, tmp_path, capsys):
     assert code == 2 and "would replace an input" in capsys.readouterr().err
 
 
+def test_bad_options_are_one_line(data, tmp_path, capsys):
+    for argv, fragment in (
+            (["bench", "--workers", "0", "--out", str(tmp_path / "b")], "--workers"),
+            (["batch", str(data / "scenes" / "a"), "--out", str(tmp_path / "o"),
+              "--cpus-per-scene", "0"], "--cpus-per-scene"),
+            (["batch", str(tmp_path / "none*"), "--out", str(tmp_path / "o")], "SCENE")):
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and fragment in err, err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "b").exists()
+
+
 @needs_ray
 def test_unreachable_address_is_one_line(data, tmp_path, capsys):
     # before the module's Ray instance starts: a connected process would use that one

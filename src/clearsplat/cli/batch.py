@@ -48,10 +48,15 @@ def run(args) -> int:
         for message in row.get("warnings") or []:
             warn(f"{row['scene']}: {message}")
 
-    rows = run_batch(scenes, args.out, config=config, keep_all=args.keep_all,
-                     report=args.report, force=args.force, address=args.address,
-                     num_cpus=args.num_cpus, cpus_per_scene=args.cpus_per_scene,
-                     progress=bar, on_scene=on_scene)
+    try:
+        rows = run_batch(scenes, args.out, config=config, keep_all=args.keep_all,
+                         report=args.report, force=args.force, address=args.address,
+                         num_cpus=args.num_cpus, cpus_per_scene=args.cpus_per_scene,
+                         progress=bar, on_scene=on_scene)
+    except KeyboardInterrupt:
+        print("clearsplat: interrupted; the scenes that finished are kept (run the same "
+              "command again to resume)", file=sys.stderr)
+        return 130
     counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "skipped", "failed")}
     width = max(len(r["scene"]) for r in rows)
     for r in rows:
