@@ -26,7 +26,7 @@ FILTER_FILES = ("gaussians.ply", "removed.npy", "summary.json")
 
 
 def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
-                         report: bool = False) -> None:
+                         report: bool = False, source: str | None = None) -> None:
     """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder).
 
     Parameters
@@ -41,6 +41,8 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
         Keep every Gaussian in ``gaussians.ply``, the removed ones with zero opacity.
     report : bool, default False
         Also write the diagnostic pictures and HTML page into ``folder/report``.
+    source : str, optional
+        The input's path, named in the report.
     """
     from ..io import write_ply
     from ..report import write_report
@@ -57,7 +59,7 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
     with open(os.path.join(folder, "summary.json"), "w") as f:
         json.dump(result.summary(), f, indent=1)
     if report:
-        write_report(os.path.join(folder, "report"), scene, result)
+        write_report(os.path.join(folder, "report"), scene, result, source=source)
 
 
 def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: bool = False,
@@ -111,7 +113,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         if message not in shown:
             shown.append(message)
     with output_folder(out, inputs=[scene], force=force, command="filter") as tmp:
-        write_filter_outputs(tmp, loaded, result, keep_all=keep_all, report=report)
+        write_filter_outputs(tmp, loaded, result, keep_all=keep_all, report=report,
+                             source=os.fspath(scene))
     s = result.summary()
     return {"gaussians": s["gaussians"], "removed": s["removed"], "accepted": s["accepted"],
             "seconds": time.perf_counter() - t0, "warnings": shown}

@@ -49,7 +49,8 @@ def run(args) -> int:
 
     with output_folder(args.out, inputs=[args.scene], force=args.force,
                        command="filter") as tmp:
-        write_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report)
+        write_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
+                      source=args.scene)
     s = result.summary()
     print(f"removed {s['removed']:,} of {s['gaussians']:,} Gaussians "
           f"({s['accepted']} of {len(s['candidates'])} candidates); wrote {args.out}")
