@@ -59,7 +59,9 @@ from ..scene import Gaussians, Scene
 from .exports import read_export
 
 __all__ = ["EXPORT_FORMATS", "ExportFormat", "ImportReport", "import_export", "export_slots",
-           "viewer_rotation"]
+           "viewer_rotation", "load_views"]
+
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 @dataclass(frozen=True)
@@ -564,3 +566,101 @@ def _shift_principal_point(cam: Camera, px: float) -> Camera:
     k[0, 2] += px
     k[1, 2] += px
     return Camera(K=k, camera_to_world=cam.camera_to_world, width=cam.width, height=cam.height)
+
+
+# ------------------------------------------------------------------------------------------------
+# cameras and images from files
+# ------------------------------------------------------------------------------------------------
+def load_views(cameras_path, images_dir, *, views=None):
+    """The context cameras and images of a model run, from files.
+
+    Parameters
+    ----------
+    cameras_path : str or os.PathLike
+        A ``cameras.json`` / nerfstudio ``transforms.json`` (or a folder holding one), or a
+        COLMAP model folder (``cameras.bin``/``images.bin`` or ``.txt``, or a dataset folder
+        with ``sparse/0``).
+    images_dir : str or os.PathLike
+        The images the model saw. Matched to the cameras by file name (the cameras' image
+        names, without their folders); when the names do not match, by sorted order if there
+        are as many images as (selected) cameras.
+    views : sequence of int or str, optional
+        Which cameras are the model's context views, in the model's order: indices into the
+        camera file's order (COLMAP: sorted by image name) or image names. Default: all.
+
+    Returns
+    -------
+    cameras : list of Camera
+        At the images' resolution: a camera whose size differs from its image by one exact
+        factor is scaled to it (``Camera.scaled``); any other mismatch is refused.
+    images : list of (H, W, 3) float32
+    names : list of str
+        The image files used.
+
+    Raises
+    ------
+    ClearsplatError
+        Naming the file or option: unreadable cameras or images, an unknown view, too few
+        images, a size that is not a uniform scaling (a crop: write the cropped cameras).
+    """
+    from pathlib import Path
+
+    from .bundle import CAMERAS_FILE, TRANSFORMS_FILE, load_cameras
+    from .colmap import read_colmap
+    from .images import read_image
+
+    cpath = Path(cameras_path)
+    colmap = cpath.is_dir() and not any((cpath / f).is_file()
+                                        for f in (CAMERAS_FILE, TRANSFORMS_FILE))
+    if colmap:
+        cams, names = read_colmap(cpath)
+    else:
+        cams, paths = load_cameras(cpath)
+        names = [None if p is None else Path(p).name for p in paths]
+    names = [None if n is None else Path(n).name for n in names]
+    if views is not None:
+        picked = []
+        for item in views:
+            key = str(item).strip()
+            if key.lstrip("-").isdigit():
+                i = int(key)
+                if not 0 <= i < len(cams):
+                    raise ClearsplatError(f"view {i} out of range 0..{len(cams) - 1}",
+                                          path=cpath, field="--views")
+            elif key in names:
+                i = names.index(key)
+            else:
+                raise ClearsplatError(f"no camera for image {key!r}", path=cpath,
+                                      field="--views")
+            picked.append(i)
+        cams, names = [cams[i] for i in picked], [names[i] for i in picked]
+    folder = Path(images_dir)
+    if not folder.is_dir():
+        raise ClearsplatError("not a folder", path=folder, field="--images")
+    files = sorted(p.name for p in folder.iterdir()
+                   if p.suffix.lower() in _IMAGE_SUFFIXES and p.is_file())
+    if all(n is not None and n in files for n in names):
+        chosen = list(names)
+    elif len(files) == len(cams):
+        chosen = files
+    else:
+        raise ClearsplatError(f"{len(files)} images and {len(cams)} cameras, and the cameras' "
+                              "image names are not all in the folder: pass --views or a folder "
+                              "holding exactly the model's input images", path=folder,
+                              field="--images")
+    images, out = [], []
+    for i, (cam, name) in enumerate(zip(cams, chosen)):
+        img = read_image(folder / name)
+        h, w = img.shape[:2]
+        if (h, w) != (cam.height, cam.width):
+            f = w / cam.width
+            if abs(h - cam.height * f) > 1e-9 * h or round(cam.width * f) != w:
+                raise ClearsplatError(
+                    f"image is {w}x{h}, its camera {cam.width}x{cam.height}: not a uniform "
+                    "scaling (a crop, such as DepthSplat's centre crop, changes the principal "
+                    "point; write the cameras of the cropped images)", path=folder / name,
+                    field="size")
+            cam = cam.scaled(f)
+        images.append(img)
+        out.append(cam)
+    return out, images, chosen
