@@ -172,3 +172,17 @@ def test_anysplat_voxel_inverse_matches_the_encoder_computation():
                           np.broadcast_to(np.diag([1.0, 1.0, 1.0]), (1, v, 3, 3)),
                           height=h, width=w, voxel_inverse=got)
     assert len(scene) == count and (scene.pixel_id == -1).all()
+
+
+def test_anysplat_example_dry_run(tmp_path):
+    import runpy
+    from pathlib import Path
+
+    from clearsplat.io import load_scene
+
+    path = Path(__file__).parent.parent / "examples" / "anysplat_inference.py"
+    runpy.run_path(str(path), run_name="example")["main"](
+        ["--dry-run", "--out", str(tmp_path / "out")])
+    scene = load_scene(tmp_path / "out")
+    assert len(scene) > 1000 and (scene.pixel_id == -1).all()
+    assert set(np.unique(scene.view_id)) == {0, 1, 2}
