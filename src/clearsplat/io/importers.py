@@ -479,7 +479,13 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     sh = g.sh
     if sh.shape[1] > 1 and fmt.sh_frame == "file" and not np.allclose(a, np.eye(3)):
         from ..adapters.sh_rotation import rotate_sh
-        sh = rotate_sh(sh, a)
+        try:
+            sh = rotate_sh(sh, a)
+        except ClearsplatError as e:
+            raise ClearsplatError(
+                f"the f_rest bands are in the export's frame and must turn to the cameras' "
+                f"({e.reason}); export the DC band only, or give cameras in the export's frame",
+                path=path, field="f_rest") from None
     out = Gaussians(means=means.astype(np.float32), scales=scales, quats=quats,
                     opacities=g.opacities, sh=sh)
     scene = Scene(out, view_id=view_id, pixel_id=pixel_id, cameras=cams, images=images)
