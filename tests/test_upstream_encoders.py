@@ -1,0 +1,149 @@
+"""Opt-in: the real encoders (random weights, CPU, 2 views of 128 px) through the adapters and
+through ``clearsplat import`` of their own export function's file.
+
+Runs only when an environment variable points at an upstream checkout (never vendored):
+``CLEARSPLAT_UPSTREAM_DEPTHSPLAT=/path/to/depthsplat``. What is stubbed and the results per
+backbone are in ``docs/backbones.md`` ("Checked against the upstream encoders").
+Each check: every Gaussian of the adapted scene projects into the pixel its ``pixel_id`` names
+(within 0.5 px of the centre per axis), and the imported export holds the same Gaussians at the
+same views and pixels.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clearsplat import Camera
+from clearsplat.io.importers import _residuals, import_export
+
+torch = pytest.importorskip("torch")
+pytestmark = pytest.mark.filterwarnings("ignore")     # the upstream code's own warnings
+H = W = 128
+TRAINING_ONLY = ["torchvision", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
+                 "lpips", "moviepy", "skvideo", "cv2", "colorspacious", "hydra", "omegaconf",
+                 "dacite", "matplotlib", "beartype"]
+
+
+def _checkout(name):
+    path = os.environ.get(f"CLEARSPLAT_UPSTREAM_{name.upper()}")
+    if not path:
+        pytest.skip(f"set CLEARSPLAT_UPSTREAM_{name.upper()} to an upstream checkout")
+    return Path(path)
+
+
+@pytest.fixture
+def upstream_path(request):
+    """Put one checkout's ``src`` package on the path, with the stubs, and take it off after."""
+    added = []
+
+    def use(name):
+        root = _checkout(name)
+        import upstream_stubs
+        upstream_stubs.install(TRAINING_ONLY)
+        sys.path.insert(0, str(root))
+        added.append(str(root))
+        return root
+
+    yield use
+    for p in added:
+        sys.path.remove(p)
+    for m in [m for m in sys.modules if m == "src" or m.startswith("src.")]:
+        del sys.modules[m]
+
+
+def _context(v=2, seed=0):
+    """Two views of a textured scene: images, OpenCV camera-to-world, normalised intrinsics."""
+    g = torch.Generator().manual_seed(seed)
+    img = torch.rand(1, v, 3, H, W, generator=g)
+    ext = torch.eye(4).repeat(1, v, 1, 1)
+    for i in range(v):
+        a = 0.08 * i
+        ext[0, i, :3, :3] = torch.tensor([[np.cos(a), 0, np.sin(a)], [0, 1, 0],
+                                          [-np.sin(a), 0, np.cos(a)]], dtype=torch.float32)
+        ext[0, i, :3, 3] = torch.tensor([0.3 * i, 0.05 * i, 0.0])
+    intr = torch.tensor([[0.9, 0, 0.5], [0, 0.9, 0.5], [0, 0, 1]]).repeat(1, v, 1, 1)
+    return {"image": img, "extrinsics": ext, "intrinsics": intr,
+            "near": torch.full((1, v), 0.5), "far": torch.full((1, v), 20.0)}
+
+
+def _cameras(ctx):
+    return [Camera(K=np.diag([W, H, 1.0]) @ ctx["intrinsics"][0, i].numpy(),
+                   camera_to_world=ctx["extrinsics"][0, i].double().numpy(), width=W, height=H)
+            for i in range(ctx["image"].shape[1])]
+
+
+def _inside(scene):
+    d = _residuals(scene.gaussians.means.astype(np.float64), scene.cameras, scene.view_id,
+                   scene.pixel_id)
+    return float((np.abs(d) <= 0.5 + 1e-4).all(axis=1).mean()), float(np.abs(d).max())
+
+
+def _build(cls_cfg, values):
+    """A config dataclass from a dict, nested dataclasses built by their field types."""
+    import dataclasses
+    import typing
+    hints = typing.get_type_hints(cls_cfg)
+    kw = {}
+    for f in fields(cls_cfg):
+        if f.name not in values:
+            continue
+        t, v = hints[f.name], values[f.name]
+        if t is float and isinstance(v, str):              # YAML 1.1 reads 1e-10 as text
+            v = float(v)
+        kw[f.name] = _build(t, v) if dataclasses.is_dataclass(t) and isinstance(v, dict) else v
+    return cls_cfg(**kw)
+
+
+class _TinyViT(torch.nn.Module):
+    """Stands in for DINOv2 (fetched by ``torch.hub`` from GitHub): patch features of the
+    shapes ``get_intermediate_layers`` returns, from random projections."""
+
+    def __init__(self, dim):
+        super().__init__()
+        self.mask_token = torch.nn.Parameter(torch.zeros(1, dim))
+        self.proj = torch.nn.ModuleList(torch.nn.Conv2d(3, dim, 14, 14) for _ in range(4))
+
+    def get_intermediate_layers(self, x, n, return_class_token=False):
+        return [p(x).flatten(2).transpose(1, 2) for p in self.proj]
+
+
+def test_depthsplat_encoder(upstream_path, tmp_path, monkeypatch):
+    import yaml
+    root = upstream_path("depthsplat")
+    monkeypatch.setattr(torch.hub, "load", lambda *a, **k: _TinyViT(384))
+    from src.model.encoder.encoder_depthsplat import EncoderDepthSplat, EncoderDepthSplatCfg
+    from src.model.ply_export import save_gaussian_ply
+    from clearsplat.adapters import from_depthsplat
+
+    values = yaml.safe_load((root / "config/model/encoder/depthsplat.yaml").read_text())
+    torch.manual_seed(0)
+    enc = EncoderDepthSplat(_build(EncoderDepthSplatCfg, values)).eval()
+    ctx = _context()
+    dump = {}
+    with torch.no_grad():
+        out = enc(ctx, global_step=0, deterministic=True, visualization_dump=dump)
+    gaussians = out["gaussians"] if isinstance(out, dict) else out
+    scene = from_depthsplat(gaussians, ctx["extrinsics"], ctx["intrinsics"], ctx["image"],
+                            height=H, width=W)
+    inside, worst = _inside(scene)
+    assert inside == 1.0, worst
+    path = tmp_path / "gaussians.ply"
+    save_gaussian_ply(gaussians, dump, {"context": ctx}, path)
+    imported, report = import_export(path, "depthsplat", _cameras(ctx))
+    print(f"\ndepthsplat: adapter {len(scene)} Gaussians, {100 * inside:.2f} % in their pixel "
+          f"(max offset {worst:.3f} px); import: {report.summary()}")
+    assert report.inside_pixel == 1.0
+    # the same Gaussians: match each imported vertex to the adapted one at its view and pixel
+    key = scene.view_id.astype(np.int64) * H * W + scene.pixel_id
+    pos = {int(k): i for i, k in enumerate(key)}
+    idx = np.array([pos[int(k)] for k in imported.view_id.astype(np.int64) * H * W +
+                    imported.pixel_id])
+    assert np.allclose(imported.gaussians.means, scene.gaussians.means[idx], atol=1e-4)
+    assert np.allclose(imported.gaussians.opacities, scene.gaussians.opacities[idx],
+                       atol=1e-5)
