@@ -147,3 +147,60 @@ def test_depthsplat_encoder(upstream_path, tmp_path, monkeypatch):
     assert np.allclose(imported.gaussians.means, scene.gaussians.means[idx], atol=1e-4)
     assert np.allclose(imported.gaussians.opacities, scene.gaussians.opacities[idx],
                        atol=1e-5)
+
+
+def _hwsv_trim(x, v, trim=8):
+    """The figure scripts' ``"() (v h w spp) ... -> h w spp v ..."`` and border mask."""
+    from einops import rearrange
+    x = rearrange(x, "() (v h w spp) ... -> h w spp v ...", v=v, h=H, w=W)
+    mask = torch.zeros(x.shape[:4], dtype=torch.bool)
+    mask[trim:-trim, trim:-trim] = True
+    return x[mask][None]
+
+
+def test_mvsplat_encoder(upstream_path, tmp_path):
+    import types
+
+    import yaml
+    from scipy.spatial.transform import Rotation
+    root = upstream_path("mvsplat")
+    import src.global_cfg as global_cfg
+    global_cfg.set_cfg(types.SimpleNamespace(mode="test", dataset=types.SimpleNamespace(
+        view_sampler=types.SimpleNamespace(num_context_views=2))))
+    from src.model.encoder.encoder_costvolume import EncoderCostVolume, EncoderCostVolumeCfg
+    from src.model.ply_export import export_ply
+    from clearsplat.adapters import from_mvsplat
+
+    values = yaml.safe_load((root / "config/model/encoder/costvolume.yaml").read_text())
+    torch.manual_seed(0)
+    enc = EncoderCostVolume(_build(EncoderCostVolumeCfg, values)).eval()
+    ctx = _context()
+    dump = {}
+    with torch.no_grad():
+        gaussians = enc(ctx, global_step=0, deterministic=True, visualization_dump=dump)
+    scene = from_mvsplat(gaussians, ctx["extrinsics"], ctx["intrinsics"], ctx["image"],
+                         height=H, width=W)
+    inside, worst = _inside(scene)
+    assert inside == 1.0, worst
+    # the paper figure script: trim, camera rotations turned by their view, export_ply
+    v = ctx["image"].shape[1]
+    view = _hwsv_trim(torch.arange(v).repeat_interleave(H * W)[None], v)[0]
+    c2w = ctx["extrinsics"][0, view, :3, :3].numpy()
+    cam_rot = _hwsv_trim(dump["rotations"], v)[0].numpy()
+    world_rot = Rotation.from_matrix(c2w @ Rotation.from_quat(cam_rot).as_matrix()).as_quat()
+    path = tmp_path / "gaussians.ply"
+    export_ply(ctx["extrinsics"][0, 0], _hwsv_trim(gaussians.means, v)[0],
+               _hwsv_trim(dump["scales"], v)[0], torch.from_numpy(world_rot).float(),
+               _hwsv_trim(gaussians.harmonics, v)[0], _hwsv_trim(gaussians.opacities, v)[0],
+               path)
+    imported, report = import_export(path, "mvsplat", _cameras(ctx))
+    print(f"\nmvsplat: adapter {len(scene)} Gaussians, {100 * inside:.2f} % in their pixel "
+          f"(max offset {worst:.3f} px); import: {report.summary()}")
+    assert report.inside_pixel >= 0.999
+    key = scene.view_id.astype(np.int64) * H * W + scene.pixel_id
+    pos = {int(k): i for i, k in enumerate(key)}
+    idx = np.array([pos[int(k)] for k in imported.view_id.astype(np.int64) * H * W +
+                    imported.pixel_id])
+    err = np.linalg.norm(imported.gaussians.means - scene.gaussians.means[idx], axis=1)
+    depth = np.linalg.norm(scene.gaussians.means[idx], axis=1)
+    assert np.median(err / depth) < 1e-2
