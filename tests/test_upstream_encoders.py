@@ -25,7 +25,7 @@ from clearsplat.io.importers import _residuals, import_export
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore")     # the upstream code's own warnings
 H = W = 128
-TRAINING_ONLY = ["torchvision", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
+TRAINING_ONLY = ["torchvision", "huggingface_hub", "diff_gaussian_rasterization", "gsplat", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
                  "lpips", "moviepy", "skvideo", "cv2", "colorspacious", "hydra", "omegaconf",
                  "dacite", "matplotlib", "beartype"]
 
@@ -40,12 +40,12 @@ def _checkout(name):
 @pytest.fixture
 def upstream_path(request):
     """Put one checkout's ``src`` package on the path, with the stubs, and take it off after."""
-    added = []
+    added, undo = [], []
 
     def use(name):
         root = _checkout(name)
         import upstream_stubs
-        upstream_stubs.install(TRAINING_ONLY)
+        undo.append(upstream_stubs.install(TRAINING_ONLY))
         sys.path.insert(0, str(root))
         added.append(str(root))
         return root
@@ -53,14 +53,16 @@ def upstream_path(request):
     yield use
     for p in added:
         sys.path.remove(p)
+    for u in undo:
+        u()
     for m in [m for m in sys.modules if m == "src" or m.startswith("src.")]:
         del sys.modules[m]
 
 
-def _context(v=2, seed=0):
+def _context(v=2, seed=0, size=H):
     """Two views of a textured scene: images, OpenCV camera-to-world, normalised intrinsics."""
     g = torch.Generator().manual_seed(seed)
-    img = torch.rand(1, v, 3, H, W, generator=g)
+    img = torch.rand(1, v, 3, size, size, generator=g)
     ext = torch.eye(4).repeat(1, v, 1, 1)
     for i in range(v):
         a = 0.08 * i
@@ -73,8 +75,9 @@ def _context(v=2, seed=0):
 
 
 def _cameras(ctx):
-    return [Camera(K=np.diag([W, H, 1.0]) @ ctx["intrinsics"][0, i].numpy(),
-                   camera_to_world=ctx["extrinsics"][0, i].double().numpy(), width=W, height=H)
+    h, w = ctx["image"].shape[-2:]
+    return [Camera(K=np.diag([w, h, 1.0]) @ ctx["intrinsics"][0, i].numpy(),
+                   camera_to_world=ctx["extrinsics"][0, i].double().numpy(), width=w, height=h)
             for i in range(ctx["image"].shape[1])]
 
 
@@ -208,9 +211,10 @@ def test_mvsplat_encoder(upstream_path, tmp_path):
 
 def _same_gaussians(imported, scene):
     """Each imported vertex matched to the adapted Gaussian of its view and pixel."""
-    key = scene.view_id.astype(np.int64) * H * W + scene.pixel_id
+    hw = scene.cameras[0].height * scene.cameras[0].width
+    key = scene.view_id.astype(np.int64) * hw + scene.pixel_id
     pos = {int(k): i for i, k in enumerate(key)}
-    return np.array([pos[int(k)] for k in imported.view_id.astype(np.int64) * H * W +
+    return np.array([pos[int(k)] for k in imported.view_id.astype(np.int64) * hw +
                      imported.pixel_id])
 
 
@@ -256,3 +260,64 @@ def _rs(scene):
     from clearsplat.adapters._common import quats_to_matrices
     r = quats_to_matrices(scene.gaussians.quats)
     return r, scene.gaussians.scales.astype(np.float64) ** 2, r
+
+
+def test_yonosplat_encoder(upstream_path, tmp_path):
+    import yaml
+    from einops import rearrange
+    root = upstream_path("yonosplat")
+    from src.model.encoder.backbone.backbone_local_global import BackboneLocalGlobalCfg
+    from src.model.encoder.encoder_yonosplat import EncoderYoNoSplat, EncoderYoNoSplatCfg
+    from src.model.ply_export import export_ply
+    from clearsplat.adapters import from_yonosplat
+    from clearsplat.errors import ClearsplatError
+
+    values = yaml.safe_load((root / "config/model/encoder/yonosplat.yaml").read_text())
+    values.pop("defaults")
+    backbone = yaml.safe_load((root / "config/model/encoder/backbone/local_global.yaml")
+                              .read_text())
+    values["backbone"] = _build(BackboneLocalGlobalCfg, backbone)
+    values["use_checkpoint"] = False
+    torch.manual_seed(0)
+    enc = EncoderYoNoSplat(_build(EncoderYoNoSplatCfg, values)).eval()
+    size = 112                                       # a multiple of the 14-pixel patches
+    ctx = _context(size=size)
+    dump = {}
+    with torch.no_grad():
+        gaussians = enc(ctx, global_step=0, visualization_dump=dump)
+    scene = from_yonosplat(gaussians, dump["c2w"], ctx["intrinsics"], ctx["image"],
+                           height=size, width=size)
+    # a point-map model: the layout is checked against the encoder's own per-pixel dump
+    assert np.allclose(scene.gaussians.means, dump["means"][0].reshape(-1, 3).numpy(),
+                       atol=1e-5)
+    # test_step's export: trim 8, opacity > 0.01, "h w spp v", local rotations, raw opacity
+    v, h, w = 2, size, size
+    op = rearrange(gaussians.opacities, "() (v h w spp) -> h w spp v", spp=1, h=h, w=w)
+    mask = torch.zeros_like(op, dtype=torch.bool)
+    mask[8:-8, 8:-8] = True
+
+    def trim(x, m):
+        return rearrange(x, "() (v h w spp) ... -> h w spp v ...", spp=1, h=h, w=w)[m][None]
+
+    cams = [Camera(K=c.K, camera_to_world=dump["c2w"][0, i].double().numpy(), width=w,
+                   height=h) for i, c in enumerate(_cameras(ctx))]
+    for cut, name in ((False, "uncut.ply"), (True, "cut.ply")):
+        m = mask & (op > 0.01) if cut else mask
+        export_ply(trim(gaussians.means, m)[0], trim(dump["scales"], m)[0],
+                   trim(dump["rotations"], m)[0], trim(gaussians.harmonics, m)[0],
+                   trim(gaussians.opacities, m)[0], tmp_path / name, save_sh_dc_only=True)
+    imported, report = import_export(tmp_path / "uncut.ply", "yonosplat", cams,
+                                     opacity_cut=0)
+    idx = _same_gaussians(imported, scene)
+    print(f"\nyonosplat: {len(scene)} Gaussians; import: {report.summary()}; "
+          f"{int((op[mask] <= 0.01).sum())} trimmed opacities <= 0.01")
+    assert np.allclose(imported.gaussians.means, scene.gaussians.means[idx], atol=1e-5)
+    cov_a = np.einsum("nij,nj,nkj->nik", *_rs(imported))
+    cov_b = np.einsum("nij,nj,nkj->nik", *_rs(scene.subset(idx)))
+    assert np.allclose(cov_a, cov_b, atol=1e-5 * np.abs(cov_b).max())
+    if (op[mask] <= 0.01).any():
+        with pytest.raises(ClearsplatError, match="without recording which"):
+            import_export(tmp_path / "cut.ply", "yonosplat", cams)
+    else:
+        again, _ = import_export(tmp_path / "cut.ply", "yonosplat", cams)
+        assert np.array_equal(again.pixel_id, imported.pixel_id)

@@ -29,4 +29,13 @@ class StubFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def exec_module(self, module): pass
 
 def install(roots):
-    sys.meta_path.insert(0, StubFinder(roots))
+    """Put the stand-ins first on the import path; returns a function that takes them off."""
+    finder = StubFinder(roots)
+    sys.meta_path.insert(0, finder)
+
+    def uninstall():
+        sys.meta_path.remove(finder)
+        for name in [m for m in sys.modules if m.split(".")[0] in finder.roots]:
+            if isinstance(sys.modules[name], _StubModule):
+                del sys.modules[name]
+    return uninstall
