@@ -223,9 +223,10 @@ def test_resplat_latent_grid_middle_view(tmp_path):
 def test_anysplat_half_pixel_and_voxels(tmp_path, cams):
     # VGGT puts pixel (row, col) at (col, row): half a pixel before our centres
     pred, t = _prediction(cams, shift_px=0.5)
-    rel = _to_first_view(pred, t, rotations="frame")
+    rot = Rotation.from_matrix(t["rot_world"]).as_quat()
+    pred = dict(pred, rotations=rot)         # in the frame of the predicted poses (the cameras)
     path = tmp_path / "a.ply"
-    up.anysplat_inference_export(path, rel)
+    up.anysplat_inference_export(path, pred)
     with pytest.raises(ClearsplatError, match="voxel_inverse") as e:
         import_export(path, "anysplat", cams)
     assert "\n" not in str(e.value)

@@ -25,7 +25,7 @@ from clearsplat.io.importers import _residuals, import_export
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore")     # the upstream code's own warnings
 H = W = 128
-TRAINING_ONLY = ["torchvision", "huggingface_hub", "diff_gaussian_rasterization", "gsplat", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
+TRAINING_ONLY = ["torchvision", "huggingface_hub", "diff_gaussian_rasterization", "gsplat", "xformers", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
                  "lpips", "moviepy", "skvideo", "cv2", "colorspacious", "hydra", "omegaconf",
                  "dacite", "matplotlib", "beartype"]
 
@@ -321,3 +321,116 @@ def test_yonosplat_encoder(upstream_path, tmp_path):
     else:
         again, _ = import_export(tmp_path / "cut.ply", "yonosplat", cams)
         assert np.array_equal(again.pixel_id, imported.pixel_id)
+
+
+def _torch_scatter_stand_in():
+    """``torch_scatter``'s ``scatter_add``/``scatter_max`` along dim 0 (a compiled extension;
+    the same sums and maxima with PyTorch's own scatter)."""
+    import types
+    mod = types.ModuleType("torch_scatter")
+
+    def scatter_add(src, index, dim=0):
+        assert dim == 0
+        out = torch.zeros((int(index.max()) + 1,) + tuple(src.shape[1:]), dtype=src.dtype)
+        return out.index_add_(0, index, src)
+
+    def scatter_max(src, index, dim=0):
+        assert dim == 0
+        out = torch.full((int(index.max()) + 1,) + tuple(src.shape[1:]), -torch.inf,
+                         dtype=src.dtype)
+        return out.scatter_reduce(0, index, src, "amax", include_self=False), None
+
+    mod.scatter_add, mod.scatter_max = scatter_add, scatter_max
+    return mod
+
+
+def test_anysplat_encoder(upstream_path, tmp_path, monkeypatch):
+    import yaml
+    root = upstream_path("anysplat")
+    monkeypatch.setitem(sys.modules, "torch_scatter", _torch_scatter_stand_in())
+    from src.model.encoder.anysplat import EncoderAnySplat, EncoderAnySplatCfg
+    from src.model.encoder.backbone.backbone_croco import BackboneCrocoCfg
+    from src.model.encoder.vggt.models.vggt import VGGT
+    from src.model.encoder.vggt.utils.geometry import \
+        batchify_unproject_depth_map_to_point_map
+    from src.model.encoder.vggt.utils.pose_enc import pose_encoding_to_extri_intri
+    from src.model.ply_export import export_ply
+    from clearsplat.adapters import anysplat_voxel_inverse, from_anysplat
+
+    # random weights instead of the checkpoint download
+    monkeypatch.setattr(VGGT, "from_pretrained", classmethod(lambda cls, *a, **k: cls()),
+                        raising=False)
+    values = yaml.safe_load((root / "config/model/encoder/anysplat.yaml").read_text())
+    values.pop("defaults")
+    values["backbone"] = _build(BackboneCrocoCfg, yaml.safe_load(
+        (root / "config/model/encoder/backbone/croco.yaml").read_text()))
+    exp = yaml.safe_load((root / "config/experiment/dl3dv.yaml").read_text())
+    values.update(exp["model"]["encoder"])               # the released setting
+    values["distill"] = False                            # as inference() sets it
+    torch.manual_seed(0)
+    enc = EncoderAnySplat(_build(EncoderAnySplatCfg, values)).eval()
+    # the bfloat16 aggregator's tokens go to float32 heads: CUDA autocast casts them, the
+    # CPU needs it said
+    enc.aggregator.register_forward_hook(
+        lambda m, i, o: ([t.float() for t in o[0]], o[1]))
+    conf = {}
+    enc.gaussian_param_head.register_forward_hook(
+        lambda m, i, o: conf.__setitem__("conf", o[:, :, enc.raw_gs_dim].detach()))
+    size = 112
+    img = _context(size=size)["image"]
+    with torch.no_grad():
+        out = enc(img, global_step=0)
+    n = out.gaussians.means.shape[1]
+    enc_last = out.pred_pose_enc_list[-1]
+    ours = anysplat_voxel_inverse(enc_last, out.depth_dict["depth"],
+                                  voxel_size=enc.voxel_size, num_gaussians=n)
+    ext, intr = pose_encoding_to_extri_intri(enc_last, (size, size))
+    pts = batchify_unproject_depth_map_to_point_map(out.depth_dict["depth"], ext, intr)
+    vox = (pts[0].reshape(-1, 3) / enc.voxel_size).round().int()
+    exact = torch.unique(vox, dim=0, return_inverse=True)[1].numpy()
+    same = float((ours == exact).mean())
+    # the fused centres from the recovered index equal the encoder's Gaussians
+    c = conf["conf"][0].reshape(-1).double().numpy()
+    inv = torch.from_numpy(exact)
+    top = np.full(n, -np.inf)
+    np.maximum.at(top, exact, c)
+    wgt = np.exp(c - top[exact])
+    tot = np.bincount(exact, weights=wgt, minlength=n)
+    fused = np.zeros((n, 3))
+    np.add.at(fused, exact, pts[0].reshape(-1, 3).double().numpy() * (wgt / (tot[exact] + 1e-6))
+              [:, None])
+    assert np.allclose(fused, out.gaussians.means[0].double().numpy(), atol=1e-4)
+    scene = from_anysplat(out.gaussians, out.pred_context_pose["extrinsic"],
+                          out.pred_context_pose["intrinsic"], img, height=size, width=size,
+                          voxel_inverse=inv, confidence=conf["conf"])
+    assert len(scene) == n
+    # without voxels: pixel-aligned; VGGT's half pixel handled
+    enc.cfg.voxelize = False
+    with torch.no_grad():
+        out2 = enc(img, global_step=0)
+    pix = from_anysplat(out2.gaussians, out2.pred_context_pose["extrinsic"],
+                        out2.pred_context_pose["intrinsic"], img, height=size, width=size)
+    inside, worst = _inside(pix)
+    plain = from_anysplat(out2.gaussians, out2.pred_context_pose["extrinsic"],
+                          out2.pred_context_pose["intrinsic"], img, height=size, width=size,
+                          vggt_pixels=False)
+    d = _residuals(plain.gaussians.means.astype(np.float64), plain.cameras, plain.view_id,
+                   plain.pixel_id)
+    plain_offset = float(np.median(np.abs(d)))
+    path = tmp_path / "gaussians.ply"
+    g2 = out2.gaussians
+    export_ply(g2.means[0], g2.scales[0], g2.rotations[0], g2.harmonics[0], g2.opacities[0],
+               path)
+    cams = [Camera(K=np.diag([size, size, 1.0]) @ out2.pred_context_pose["intrinsic"][0, i]
+                   .double().numpy(), camera_to_world=out2.pred_context_pose["extrinsic"][0, i]
+                   .double().numpy(), width=size, height=size) for i in range(2)]
+    imported, report = import_export(path, "anysplat", cams, voxelized=False)
+    print(f"\nanysplat: voxelised {n} Gaussians from {2 * size * size} pixels, NumPy "
+          f"voxel_inverse equal to the encoder's for {100 * same:.3f} % of pixels; no voxels: "
+          f"{100 * inside:.2f} % in their pixel (max offset {worst:.3f} px; median offset "
+          f"{plain_offset:.3f} px without the half-pixel shift); import: "
+          f"{report.summary()}")
+    assert same > 0.999
+    assert inside == 1.0
+    assert report.inside_pixel == 1.0
+    assert np.allclose(imported.gaussians.means, pix.gaussians.means, atol=1e-5)

@@ -170,6 +170,6 @@ def resplat_save_gaussian_ply(path, pred):
 
 def anysplat_inference_export(path, pred):
     """AnySplat's ``inference.py``: ``export_ply(gaussians.means[0], ...)`` of the whole output
-    (world-frame rotations of the first view's frame), DC band, raw opacity."""
+    (centres and rotations in the frame of the predicted poses), DC band, raw opacity."""
     noposplat_export_ply(path, pred["means"], pred["scales"], pred["rotations"],
                          pred["harmonics"], pred["opacities"])

@@ -18,7 +18,7 @@ pixelsplat v h w s 0    raw     --         viewer              camera
 noposplat  v h w s 0    raw     --         first-camera        frame
 yonosplat  h w s v 8    raw     <= 0.01    first-camera        camera
 resplat    v h w s 0    logit   --         middle-rotation     camera
-anysplat   v h w s 0    raw     (voxels)   first-camera        frame
+anysplat   v h w s 0    raw     (voxels)   world (predicted)   frame
 3dgs       v h w s 0    logit   --         world               frame
 ========== ======= ==== ======= ========== =================== ================
 
@@ -39,6 +39,9 @@ centre of input camera ``v``, camera-to-world):
   pixel-aligned vertices to the rays of their pixels (``align="scale-shift"``).
 - ``first-camera``: the camera frame of view 0 (pose-free models): ``A = C_0``, ``b = t_0``.
   ``align="scale"`` recovers the scale when the cameras are metric and the model's are not.
+  AnySplat's Gaussians are in the frame of its predicted poses (``pred_context_pose``, whose
+  first camera is the identity only as far as the camera head learned it): ``world``, to be
+  imported with those poses as the cameras.
 
 Rotations: ``world``/``frame`` rotations are in the file's frame and turn with ``A``;
 ``camera`` rotations are each vertex's own camera frame (the encoders' un-rotated
@@ -143,7 +146,7 @@ EXPORT_FORMATS = {
         source="cvg/resplat src/model/ply_export.py (save_gaussian_ply, "
                "save_all_gaussians=True)", adapter="from_resplat"),
     "anysplat": ExportFormat(
-        order="vhws", trim=0, spp=1, opacity="raw", frame="first-camera", rotations="frame",
+        order="vhws", trim=0, spp=1, opacity="raw", frame="world", rotations="frame",
         half_pixel=True, voxelized=True,
         source="InternRobotics/AnySplat inference.py + src/model/ply_export.py (export_ply)",
         adapter="from_anysplat"),
