@@ -316,3 +316,17 @@ def test_noposplat_degree4_bands(tmp_path, cams):
     else:
         scene, _ = import_export(path, "noposplat", cams)
         assert np.allclose(scene.gaussians.sh, expect, atol=1e-5)
+
+
+def test_imported_scenes_carry_the_models_render_settings(tmp_path):
+    from clearsplat.adapters.anysplat import RENDER_SETTINGS
+    from clearsplat.adapters.pixelsplat import RESPLAT_RENDER_SETTINGS
+    cams = _cameras(3)
+    pred, _ = _prediction(cams, grid=(H // 4, W // 4))
+    up.resplat_save_gaussian_ply(tmp_path / "r.ply", pred)
+    scene, _ = import_export(tmp_path / "r.ply", "resplat", cams)
+    assert scene.render_settings == RESPLAT_RENDER_SETTINGS
+    pred, _ = _prediction(cams)
+    up.anysplat_inference_export(tmp_path / "a.ply", pred)
+    scene, _ = import_export(tmp_path / "a.ply", "anysplat", cams, voxelized=False)
+    assert scene.render_settings == RENDER_SETTINGS

@@ -24,6 +24,9 @@ that produced it and the scene renders aligned with its input images.
 
 ``voxel_inverse`` is not among AnySplat's outputs (``inference()`` returns the Gaussians and
 the poses): :func:`anysplat_voxel_inverse` recomputes it from the encoder's own outputs.
+
+AnySplat renders with gsplat (``rasterize_mode="classic"``, ``radius_clip=0.1``, every SH
+band it predicts, degree 4), so the scene keeps band 4 and carries those render settings.
 Sources: ``docs/backbones.md``.
 """
 
@@ -32,17 +35,21 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ClearsplatError
-from ..scene import Scene
+from ..scene import RenderSettings, Scene
 from ._common import (cameras_from_model, covariance_to_scales_quats, images_checked,
                       make_scene, take_batch, to_numpy)
 from .pixelsplat import native_arrays
 
-__all__ = ["from_anysplat", "anysplat_voxel_inverse"]
+__all__ = ["from_anysplat", "anysplat_voxel_inverse", "RENDER_SETTINGS"]
+
+#: How AnySplat's decoder (``decoder_splatting_cuda.py``) calls gsplat: classic, eps2d 0.3,
+#: ``radius_clip=0.1``, all SH bands.
+RENDER_SETTINGS = RenderSettings(radius_clip=0.1)
 
 
 def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
                   batch: int = 0, voxel_inverse=None, valid_mask=None, confidence=None,
-                  kept=None, max_sh_degree: int = 3, normalized_intrinsics: bool = True,
+                  kept=None, max_sh_degree: int = 4, normalized_intrinsics: bool = True,
                   vggt_pixels: bool = True) -> Scene:
     """A scene from AnySplat's native output.
 
@@ -56,8 +63,10 @@ def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int
         (normalised), or the poses the Gaussians are expressed in.
     images : [B, V, 3, H, W] or [B, V, H, W, 3], optional
         In [0, 1], before the normalisation shim.
-    height, width, batch, max_sh_degree, normalized_intrinsics
+    height, width, batch, normalized_intrinsics
         As in :func:`clearsplat.adapters.from_depthsplat`.
+    max_sh_degree : int, default 4
+        Bands above it are dropped; gsplat evaluates all of AnySplat's (degree 4).
     voxel_inverse : [B, V*H*W] or [B, V, H, W] int, optional
         With voxelisation: the ``inverse_indices`` of the voxel fusion (pixel -> voxel).
     valid_mask : [B, V, H, W] bool, optional
@@ -133,7 +142,7 @@ def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int
     means, cov, sh, op = means[:count], cov[:count], sh[:count], op[:count]
     scales, quats = covariance_to_scales_quats(cov)
     return make_scene(means, scales, quats, op, sh, view_id, pixel_id, cameras,
-                      images_checked(images, batch, v, h, w))
+                      images_checked(images, batch, v, h, w), RENDER_SETTINGS)
 
 
 def _per_pixel(x, name: str, batch: int, size: int, *, dtype) -> np.ndarray:

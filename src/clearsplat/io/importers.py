@@ -402,7 +402,9 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     -------
     scene : Scene
         Gaussians in the cameras' world, ``view_id`` and ``pixel_id`` from the layout
-        (``pixel_id = -1`` on a latent grid), the (possibly shifted) cameras, the images.
+        (``pixel_id = -1`` on a latent grid), the (possibly shifted) cameras, the images, and
+        the model's render settings (those of the adapter: ReSplat's antialiased mode,
+        AnySplat's radius clip).
     report : ImportReport
 
     Raises
@@ -491,7 +493,8 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
                 path=path, field="f_rest") from None
     out = Gaussians(means=means.astype(np.float32), scales=scales, quats=quats,
                     opacities=g.opacities, sh=sh)
-    scene = Scene(out, view_id=view_id, pixel_id=pixel_id, cameras=cams, images=images)
+    scene = Scene(out, view_id=view_id, pixel_id=pixel_id, cameras=cams, images=images,
+                  render_settings=_render_settings(format))
     scene.validate(path=path)
 
     res = _residuals(means, cams, view_id, pixel_id)
@@ -511,6 +514,17 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
                           p99_px=float(np.percentile(dist, 99)) if aligned_n else float("nan"),
                           grid=(gh, gw), notes=notes)
     return scene, report
+
+
+def _render_settings(format: str):
+    """How the model renders (the adapters' settings), so the filter renders the same way."""
+    if format == "resplat":
+        from ..adapters.pixelsplat import RESPLAT_RENDER_SETTINGS
+        return RESPLAT_RENDER_SETTINGS
+    if format == "anysplat":
+        from ..adapters.anysplat import RENDER_SETTINGS
+        return RENDER_SETTINGS
+    return None
 
 
 def _trimmed(fmt, v, h, w, n) -> int:
