@@ -66,9 +66,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for mode in ("original", "filtered", "removed"):
             viewer = serve(scene, keep=keep, port=free_port(), show=mode)
+            raw = Path(tmp) / f"{mode}.png"
             try:
-                raw = Path(tmp) / f"{mode}.png"
-                screenshot(viewer.url, raw)
+                # software WebGL is slow with a million Gaussians: wait longer until they show
+                for budget in (30000, 60000, 120000):
+                    screenshot(viewer.url, raw, budget_ms=budget)
+                    with Image.open(raw) as im:
+                        lit = (np.asarray(im.convert("L"))[160:] > 40).mean()
+                    if lit > 0.05:
+                        break
             finally:
                 viewer.stop()
             # below the browser's "software WebGL" notice, the viewer's panel kept
