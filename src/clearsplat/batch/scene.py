@@ -26,7 +26,8 @@ FILTER_FILES = ("gaussians.ply", "removed.npy", "summary.json")
 
 
 def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
-                         report: bool = False, source: str | None = None) -> None:
+                         report: bool = False, source: str | None = None, located_at=None,
+                         copy_images: bool = False) -> None:
     """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder).
 
     Parameters
@@ -40,11 +41,18 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
     keep_all : bool, default False
         Keep every Gaussian in ``gaussians.ply``, the removed ones with zero opacity.
     report : bool, default False
-        Also write the diagnostic pictures and HTML page into ``folder/report``.
+        Also write the diagnostic pictures, a before | after video and the HTML page into
+        ``folder/report``.
     source : str, optional
-        The input's path, named in the report.
+        The input bundle. With it the folder is itself a bundle: its ``cameras.json`` refers to
+        the input's images (or copies them, ``copy_images``), so that it loads again from
+        ``located_at`` (where ``folder`` is moved to; default ``folder``); the report names it.
+    located_at : str or os.PathLike, optional
+        The folder's final place, when it is written elsewhere first.
+    copy_images : bool, default False
+        Copy the input images into the folder instead of referring to them.
     """
-    from ..io import write_ply
+    from ..io import load_cameras, save_bundle_cameras, write_ply
     from ..report import write_report
 
     if keep_all:
@@ -58,12 +66,21 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
     np.save(os.path.join(folder, "removed.npy"), np.ascontiguousarray(result.removed, dtype=bool))
     with open(os.path.join(folder, "summary.json"), "w") as f:
         json.dump(result.summary(), f, indent=1)
+    if source is not None:
+        cameras, image_paths = load_cameras(source)
+        save_bundle_cameras(folder, cameras, image_paths, located_at=located_at,
+                            copy_images=copy_images, render=scene.render_settings)
     if report:
-        write_report(os.path.join(folder, "report"), scene, result, source=source)
+        from ..video import make_video
+        os.makedirs(os.path.join(folder, "report"), exist_ok=True)
+        video = make_video(os.path.join(folder, "report", "video.mp4"), scene, result.keep,
+                           num_frames=48)
+        write_report(os.path.join(folder, "report"), scene, result, source=source,
+                     video=video.name)
 
 
 def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: bool = False,
-                 force: bool = False, progress=None) -> dict:
+                 copy_images: bool = False, force: bool = False, progress=None) -> dict:
     """Load the bundle ``scene``, filter it and write the outputs into the folder ``out``.
 
     Parameters
@@ -75,7 +92,7 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         (:func:`clearsplat.io.output.output_folder`).
     config : FilterConfig, optional
         Default: ``FilterConfig()``.
-    keep_all, report : bool
+    keep_all, report, copy_images : bool
         As in :func:`write_filter_outputs`.
     force : bool, default False
         Replace an ``out`` folder that clearsplat wrote earlier.
@@ -113,8 +130,14 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         if message not in shown:
             shown.append(message)
     with output_folder(out, inputs=[scene], force=force, command="filter") as tmp:
-        write_filter_outputs(tmp, loaded, result, keep_all=keep_all, report=report,
-                             source=os.fspath(scene))
+        with warnings.catch_warnings(record=True) as caught_writing:     # the GIF fallback's
+            warnings.simplefilter("always")
+            write_filter_outputs(tmp, loaded, result, keep_all=keep_all, report=report,
+                                 source=os.fspath(scene), located_at=out,
+                                 copy_images=copy_images)
+    for message in (str(w.message) for w in caught_writing):
+        if message not in shown:
+            shown.append(message)
     s = result.summary()
     return {"gaussians": s["gaussians"], "removed": s["removed"], "accepted": s["accepted"],
             "seconds": time.perf_counter() - t0, "warnings": shown}

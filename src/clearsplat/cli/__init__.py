@@ -19,7 +19,8 @@ from ._common import one_line, sigterm_as_interrupt
 __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: The command modules, in the order ``clearsplat --help`` lists them.
-COMMANDS = ("demo", "filter", "batch", "bench", "prepare", "eval")
+COMMANDS = ("demo", "filter", "view", "video", "render", "export", "batch", "bench",
+            "prepare", "eval")
 
 
 class _Parser(argparse.ArgumentParser):
