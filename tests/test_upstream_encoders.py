@@ -263,9 +263,9 @@ def _rs(scene):
 
 
 def test_yonosplat_encoder(upstream_path, tmp_path):
+    root = upstream_path("yonosplat")
     import yaml
     from einops import rearrange
-    root = upstream_path("yonosplat")
     from src.model.encoder.backbone.backbone_local_global import BackboneLocalGlobalCfg
     from src.model.encoder.encoder_yonosplat import EncoderYoNoSplat, EncoderYoNoSplatCfg
     from src.model.ply_export import export_ply
