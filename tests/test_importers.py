@@ -307,15 +307,10 @@ def test_noposplat_degree4_bands(tmp_path, cams):
     scene, _ = import_export(path, "noposplat", rel_cams)      # nothing turns
     assert np.allclose(scene.gaussians.sh, np.swapaxes(rel["harmonics"], 1, 2), atol=1e-6)
     sh = np.swapaxes(rel["harmonics"], 1, 2).astype(np.float32)
-    try:
-        expect = rotate_sh(sh, cams[0].camera_to_world[:3, :3])
-    except ClearsplatError:                                     # band 4 not rotatable (yet)
-        with pytest.raises(ClearsplatError) as e:
-            import_export(path, "noposplat", cams)
-        assert e.value.field == "f_rest" and "\n" not in str(e.value)
-    else:
-        scene, _ = import_export(path, "noposplat", cams)
-        assert np.allclose(scene.gaussians.sh, expect, atol=1e-5)
+    expect = rotate_sh(sh, cams[0].camera_to_world[:3, :3])
+    scene, _ = import_export(path, "noposplat", cams)          # band 4 turned to the world
+    assert scene.gaussians.sh.shape[1] == 25
+    assert np.allclose(scene.gaussians.sh, expect, atol=1e-5)
 
 
 def test_imported_scenes_carry_the_models_render_settings(tmp_path):
