@@ -24,7 +24,6 @@ __all__ = ["write_vertex_ply", "pixelsplat_export_ply", "noposplat_export_ply",
 
 def write_vertex_ply(path, columns):
     """A binary little-endian PLY with float32 properties in the given order (plyfile's)."""
-    names = [k for k, _ in columns]
     table = np.concatenate([np.asarray(c, dtype=np.float64).reshape(len(c), -1)
                             for _, c in columns], axis=1).astype("<f4")
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(table)}"]
@@ -36,7 +35,6 @@ def write_vertex_ply(path, columns):
             header += [f"property float {k}_{i}" for i in range(c.shape[1])]
     header.append("end_header")
     path.write_bytes(("\n".join(header) + "\n").encode() + table.tobytes())
-    del names
 
 
 def _cols(means, scales, rot_wxyz, f_dc, f_rest, opacity_column):
