@@ -148,6 +148,14 @@ def test_pixelsplat_visualizer_export_camera_rotations(tmp_path, cams):
     _check(scene, report, t, _model_order(t), atol_means=3e-3)
 
 
+def test_pixelsplat_figure_script_export(tmp_path, cams):
+    pred, t = _prediction(cams)
+    path = tmp_path / "p.ply"
+    up.pixelsplat_figure_export(path, pred, height=H, width=W)
+    scene, report = import_export(path, "pixelsplat", cams, trim=8, order="hwsv")
+    _check(scene, report, t, lambda k: _hwsv_truth(t, k, 8), atol_means=3e-3)
+
+
 def test_noposplat_first_view_frame(tmp_path, cams):
     pred, t = _prediction(cams, d_sh=4)
     rel = _to_first_view(pred, t, rotations="frame")
