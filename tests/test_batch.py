@@ -26,6 +26,7 @@ from clearsplat import ClearsplatError, FilterConfig
 from clearsplat.batch import (estimate_scene_memory, filter_scene, find_scenes, is_complete,
                               ply_vertex_count, run_batch)
 from clearsplat.cli import main
+from clearsplat.io import load_cameras
 
 HAVE_RAY = importlib.util.find_spec("ray") is not None
 needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed "
@@ -55,9 +56,15 @@ def same_output(a: Path, b: Path) -> None:
     """Byte-identical files; ``summary.json`` equal but for the timings."""
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
-    assert names == [".clearsplat.json", "gaussians.ply", "removed.npy", "summary.json"]
+    assert names == [".clearsplat.json", "cameras.json", "gaussians.ply", "removed.npy",
+                     "summary.json"]
     for n in (".clearsplat.json", "gaussians.ply", "removed.npy"):
         assert (a / n).read_bytes() == (b / n).read_bytes(), n
+    # cameras.json refers to the input images relative to where each output lies: the same
+    # cameras and the same image files, whatever the folder.
+    (ca, ia), (cb, ib) = load_cameras(a), load_cameras(b)
+    assert ca == cb
+    assert [Path(p).resolve() for p in ia] == [Path(p).resolve() for p in ib]
     sa, sb = (json.loads((p / "summary.json").read_text()) for p in (a, b))
     assert sa.pop("timings").keys() == sb.pop("timings").keys()
     assert sa == sb

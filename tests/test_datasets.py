@@ -402,5 +402,7 @@ def test_eval_without_filtered_output_and_table_shape(tmp_path):
     assert "+ filter" not in "\n".join(table)
     with pytest.raises(ClearsplatError, match="view_config.json"):
         evaluate_prediction(tmp_path)
-    with pytest.raises(ClearsplatError, match="exists and is not empty"):
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(ClearsplatError, match="clearsplat did not write it"):
         write_configurations([], tmp_path)
+    assert (tmp_path / "notes.txt").read_text() == "mine"
