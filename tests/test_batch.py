@@ -52,15 +52,27 @@ def data(tmp_path_factory):
 
 
 def same_output(a: Path, b: Path) -> None:
-    """Byte-identical files; ``summary.json`` equal but for the timings."""
+    """Byte-identical files; ``summary.json`` equal but for the timings; ``cameras.json`` equal
+    but for the image paths, which lead from each folder to the same input images."""
+    from clearsplat.io import load_cameras
+
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
-    assert names == [".clearsplat.json", "gaussians.ply", "removed.npy", "summary.json"]
+    assert names == [".clearsplat.json", "cameras.json", "gaussians.ply", "removed.npy",
+                     "summary.json"]
     for n in (".clearsplat.json", "gaussians.ply", "removed.npy"):
         assert (a / n).read_bytes() == (b / n).read_bytes(), n
     sa, sb = (json.loads((p / "summary.json").read_text()) for p in (a, b))
     assert sa.pop("timings").keys() == sb.pop("timings").keys()
     assert sa == sb
+    ca, cb = (json.loads((p / "cameras.json").read_text()) for p in (a, b))
+    for doc in (ca, cb):
+        doc.pop("image_root", None)
+        for frame in doc["frames"]:
+            frame.pop("image")
+    assert ca == cb
+    (_, ia), (_, ib) = load_cameras(a), load_cameras(b)
+    assert [p.resolve() for p in ia] == [p.resolve() for p in ib]
 
 
 def mtimes(folder: Path) -> dict:
