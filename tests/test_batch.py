@@ -328,10 +328,9 @@ def test_command_locally_and_on_a_second_ray_node(data, tmp_path):
 
         # a second node: ray start --head on 127.0.0.1, its own ports and temp folder
         port = _free_port()
-        ray_bin = os.path.join(os.path.dirname(sys.executable), "ray")
-        head = subprocess.Popen(
-            [ray_bin, "start", "--head", "--block", "--node-ip-address=127.0.0.1",
-             f"--port={port}", f"--temp-dir={temp}", "--num-cpus=2",
+        head = subprocess.Popen(       # `ray start`, wherever pip put the script
+            [sys.executable, "-m", "ray.scripts.scripts", "start", "--head", "--block",
+             "--node-ip-address=127.0.0.1", f"--port={port}", f"--temp-dir={temp}", "--num-cpus=2",
              "--include-dashboard=false", "--disable-usage-stats",
              "--object-store-memory=100000000",
              *(f"--{opt}={_free_port()}" for opt in (
