@@ -26,6 +26,7 @@ from clearsplat import ClearsplatError, FilterConfig
 from clearsplat.batch import (estimate_scene_memory, filter_scene, find_scenes, is_complete,
                               ply_vertex_count, run_batch)
 from clearsplat.cli import main
+from clearsplat.io import load_cameras
 
 HAVE_RAY = importlib.util.find_spec("ray") is not None
 needs_ray = pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed "
@@ -54,25 +55,26 @@ def data(tmp_path_factory):
 def same_output(a: Path, b: Path) -> None:
     """Byte-identical files; ``summary.json`` equal but for the timings; ``cameras.json`` equal
     but for the image paths, which lead from each folder to the same input images."""
-    from clearsplat.io import load_cameras
-
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
     assert names == [".clearsplat.json", "cameras.json", "gaussians.ply", "removed.npy",
                      "summary.json"]
     for n in (".clearsplat.json", "gaussians.ply", "removed.npy"):
         assert (a / n).read_bytes() == (b / n).read_bytes(), n
+    # cameras.json refers to the input images relative to where each output lies: the same
+    # cameras and the same image files, whatever the folder.
+    (ca, ia), (cb, ib) = load_cameras(a), load_cameras(b)
+    assert ca == cb
+    assert [Path(p).resolve() for p in ia] == [Path(p).resolve() for p in ib]
     sa, sb = (json.loads((p / "summary.json").read_text()) for p in (a, b))
     assert sa.pop("timings").keys() == sb.pop("timings").keys()
     assert sa == sb
-    ca, cb = (json.loads((p / "cameras.json").read_text()) for p in (a, b))
-    for doc in (ca, cb):
+    ja, jb = (json.loads((p / "cameras.json").read_text()) for p in (a, b))
+    for doc in (ja, jb):                # and every other key of the file the same
         doc.pop("image_root", None)
         for frame in doc["frames"]:
             frame.pop("image")
-    assert ca == cb
-    (_, ia), (_, ib) = load_cameras(a), load_cameras(b)
-    assert [p.resolve() for p in ia] == [p.resolve() for p in ib]
+    assert ja == jb
 
 
 def mtimes(folder: Path) -> dict:

@@ -405,3 +405,4 @@ def test_eval_without_filtered_output_and_table_shape(tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     with pytest.raises(ClearsplatError, match="clearsplat did not write it"):
         write_configurations([], tmp_path)
+    assert (tmp_path / "notes.txt").read_text() == "mine"

@@ -22,7 +22,7 @@ __all__ = ["write_filter_outputs", "filter_scene", "is_complete", "ply_vertex_co
            "estimate_scene_memory", "FILTER_FILES"]
 
 #: The files every ``clearsplat filter`` output folder holds.
-FILTER_FILES = ("gaussians.ply", "cameras.json", "removed.npy", "summary.json")
+FILTER_FILES = ("cameras.json", "gaussians.ply", "removed.npy", "summary.json")
 
 
 def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
