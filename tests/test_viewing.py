@@ -338,6 +338,22 @@ def test_export_drops_removed_unless_keep_all(filtered, tmp_path, capsys):
     assert len(clearsplat.read_ply(tmp_path / "b.ply")[0]) == len(removed)
 
 
+def test_export_bad_removed_npy(filtered, tmp_path, capsys):
+    import shutil
+    _, out = filtered
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    n = len(np.load(out / "removed.npy"))
+    for content in (b"junk", np.zeros(7, bool), np.zeros(n, np.float32)):
+        if isinstance(content, bytes):
+            (bad / "removed.npy").write_bytes(content)
+        else:
+            np.save(bad / "removed.npy", content)
+        code, _, err = run(["export", bad, "--to", tmp_path / "a.splat"], capsys)
+        assert code == 2 and "removed.npy: removed:" in err, err
+        assert len(err.strip().splitlines()) == 1 and not (tmp_path / "a.splat").exists()
+
+
 # ------------------------------------------------------------------------------------------------
 # viewer
 # ------------------------------------------------------------------------------------------------

@@ -43,10 +43,11 @@ def check_output_file(path, *, inputs=(), force: bool = False, field: str = "--o
     return p
 
 
-def removed_mask(folder, n: int, *, required: bool = True):
+def removed_mask(folder, n: int | None, *, required: bool = True):
     """``removed.npy`` of a ``clearsplat filter`` output, checked against ``n`` Gaussians.
 
-    Returns None when the file is absent and not ``required``.
+    Returns None when the file is absent and not ``required``; ``n=None`` skips the length
+    check.
     """
     path = Path(folder) / "removed.npy"
     if not path.is_file():
@@ -62,7 +63,7 @@ def removed_mask(folder, n: int, *, required: bool = True):
     if removed.dtype != bool or removed.ndim != 1:
         raise ClearsplatError(f"expected a 1-D bool array, got {removed.dtype} {removed.shape}",
                               path=path, field="removed")
-    if len(removed) != n:
+    if n is not None and len(removed) != n:
         raise ClearsplatError(f"{len(removed)} entries for the scene's {n} Gaussians: "
                               "this filter output belongs to another scene", path=path,
                               field="removed")

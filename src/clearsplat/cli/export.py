@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 FORMATS = {".splat": "web viewers' 32-byte layout", ".spz": "Niantic's compressed format",
            ".ply": "plain 3DGS PLY, no extra properties"}
 
@@ -42,9 +40,14 @@ def run(args) -> int:
     if bundle.is_dir() and (bundle / "removed.npy").is_file():
         # a 'filter --keep-all' output holds every Gaussian, removed ones at zero opacity;
         # a default output holds only the kept ones (its removed.npy counts the input's)
-        n_input = len(np.load(bundle / "removed.npy", mmap_mode="r"))
-        if n_input == len(g):
-            removed = removed_mask(bundle, len(g))
+        removed = removed_mask(bundle, None)
+        if len(removed) != len(g):
+            if int((~removed).sum()) != len(g):
+                raise ClearsplatError(f"{len(removed)} entries, {int((~removed).sum())} kept, "
+                                      f"for the bundle's {len(g)} Gaussians: this filter "
+                                      "output does not match its gaussians.ply",
+                                      path=bundle / "removed.npy", field="removed")
+            removed = None
     if removed is not None and not args.keep_all and removed.any():
         g = g.subset(~removed)
         dropped = int(removed.sum())
