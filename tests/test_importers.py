@@ -269,6 +269,11 @@ def test_wrong_layout_is_one_line_with_the_fitting_options(tmp_path, cams):
     with pytest.raises(ClearsplatError) as e:
         import_export(path2, "nope", cams)
     assert e.value.field == "format"
+    for option, value in (("opacity_cut", float("nan")), ("opacity_cut", -0.1),
+                          ("opacity_cut", 1.0), ("trim", -1), ("spp", 0)):
+        with pytest.raises(ClearsplatError) as e:
+            import_export(path2, "depthsplat", cams, **{option: value})
+        assert e.value.field == option
 
 
 @pytest.mark.parametrize("order", ["vhws", "hwsv"])

@@ -60,10 +60,11 @@ def run(args) -> int:
     if args.grid:
         try:
             grid = tuple(int(x) for x in args.grid.lower().split("x"))
-            assert len(grid) == 2
-        except (ValueError, AssertionError):
-            raise ClearsplatError(f"expected ROWSxCOLS, got {args.grid!r}",
-                                  field="--grid") from None
+        except ValueError:
+            grid = ()
+        if len(grid) != 2 or min(grid) < 1:
+            raise ClearsplatError(f"expected ROWSxCOLS, two positive numbers, got "
+                                  f"{args.grid!r}", field="--grid")
     views = [v for v in args.views.split(",") if v.strip()] if args.views else None
     cameras, images, names = load_views(args.cameras, args.images, views=views)
     scene, report = import_export(

@@ -423,6 +423,12 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         half_pixel=half_pixel).items() if v is not None})
     if align not in _ALIGN:
         raise ClearsplatError(f"must be one of {_ALIGN}, got {align!r}", field="align")
+    if not 0 <= float(fmt.opacity_cut) < 1:       # also refuses NaN
+        raise ClearsplatError(f"must lie in [0, 1), got {fmt.opacity_cut}", field="opacity_cut")
+    if int(fmt.trim) < 0:
+        raise ClearsplatError(f"must be >= 0, got {fmt.trim}", field="trim")
+    if int(fmt.spp) < 1:
+        raise ClearsplatError(f"must be >= 1, got {fmt.spp}", field="spp")
     cams = _checked_cameras(cameras)
     v, h, w = len(cams), cams[0].height, cams[0].width
     if fmt.half_pixel:
