@@ -155,6 +155,10 @@ def test_bad_options_are_one_line(data, tmp_path, capsys):
             (["bench", "--workers", "0", "--out", str(tmp_path / "b")], "--workers"),
             (["batch", str(data / "scenes" / "a"), "--out", str(tmp_path / "o"),
               "--cpus-per-scene", "0"], "--cpus-per-scene"),
+            (["batch", str(data / "scenes" / "a"), "--out", str(tmp_path / "o"),
+              "--cpus-per-scene", "nan"], "--cpus-per-scene"),
+            (["batch", str(data / "scenes" / "a"), "--out", str(tmp_path / "o"),
+              "--num-cpus", "0"], "--num-cpus"),
             (["batch", str(tmp_path / "none*"), "--out", str(tmp_path / "o")], "SCENE")):
         code = main(argv)
         err = capsys.readouterr().err

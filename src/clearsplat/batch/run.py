@@ -12,6 +12,8 @@ import csv
 import glob
 import io
 import json
+import math
+import numbers
 import os
 import shutil
 import time
@@ -228,9 +230,12 @@ def run_batch(scenes: Sequence, out, *, config=None, keep_all: bool = False,
     from ..filter import FilterConfig
 
     config = config or FilterConfig()
-    if not cpus_per_scene or cpus_per_scene <= 0:
+    if not (isinstance(cpus_per_scene, numbers.Real) and 0 < cpus_per_scene < math.inf):
         raise ClearsplatError(f"must be positive, got {cpus_per_scene!r}",
                               field="--cpus-per-scene")
+    if num_cpus is not None and not (isinstance(num_cpus, numbers.Integral) and num_cpus >= 1):
+        raise ClearsplatError(f"must be a whole number >= 1, got {num_cpus!r}",
+                              field="--num-cpus")
     scenes = [Path(s) for s in scenes]
     out = Path(out)
     _prepare_out(out, scenes)
