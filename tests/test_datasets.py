@@ -366,6 +366,13 @@ def test_prepare_filter_eval(world, tmp_path, capsys):
     assert lines[5] == "NeRF On-the-go dataset (1 scene)"
     rows = json.loads((tmp_path / "scores.json").read_text())
     assert len(rows) == 8
+    for target, fragment in ((tmp_path / "scores.json", "--force"),
+                             (bundles[0] / "cameras.json", "input")):
+        before = target.read_bytes()
+        code = main(["eval", str(tmp_path / "prep" / "*" / "*"), "--json", str(target)])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and fragment in err, err
+        assert target.read_bytes() == before
 
     # one bundle scored by hand: render, PSNR / SSIM against the test images
     b = bundles[0]

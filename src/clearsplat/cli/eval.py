@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import sys
 
-from ..errors import ClearsplatError
 
 
 def add_parser(sub) -> None:
@@ -21,6 +20,7 @@ def add_parser(sub) -> None:
     p.add_argument("--label", default="Prediction",
                    help="the backbone's name in the table (default: %(default)s)")
     p.add_argument("--json", metavar="FILE", help="also write the per-bundle scores as JSON")
+    p.add_argument("--force", action="store_true", help="replace an existing --json file")
     p.set_defaults(func=run)
 
 
@@ -28,14 +28,17 @@ def run(args) -> int:
     from ..batch import find_scenes
     from ..evaluate import evaluate_predictions, format_table
     from ..io.ply import atomic_write_bytes
+    from ._files import check_output_file
 
     bundles = find_scenes(args.bundles)
+    if args.json:       # checked before the scoring, which takes a while
+        inputs = bundles + ([args.filtered] if args.filtered else [])
+        check_output_file(args.json, inputs=inputs, force=args.force, field="--json",
+                          suffixes=(".json",))
     rows = evaluate_predictions(bundles, args.filtered,
                                 log=lambda s: print("  " + s, file=sys.stderr))
     print(format_table(rows, label=args.label))
     if args.json:
-        if args.json in [str(b) for b in bundles]:
-            raise ClearsplatError("would overwrite an input", path=args.json, field="--json")
         atomic_write_bytes(args.json, (json.dumps(rows, indent=1) + "\n").encode())
         print(f"wrote {args.json}")
     return 0
