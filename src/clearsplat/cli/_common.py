@@ -9,8 +9,8 @@ import sys
 
 from ..errors import ClearsplatError
 
-__all__ = ["Bar", "add_config_args", "config_from_args", "sigterm_as_interrupt", "warn",
-           "one_line"]
+__all__ = ["Bar", "add_config_args", "add_filter_output_args", "config_from_args",
+           "sigterm_as_interrupt", "warn", "one_line"]
 
 
 class Bar:
@@ -89,6 +89,19 @@ def add_config_args(p) -> None:
     lines = [f"  {k:<{width}}  {spec.allowed()}" for k, spec in FIELD_SPECS.items()]
     p.epilog = ("--set fields (docs/method.md explains each; true/false, null for None):\n"
                 + "\n".join(lines))
+
+
+def add_filter_output_args(p, *, into: str) -> None:
+    """``--keep-all``, ``--report``, ``--copy-images``: what a filter output folder holds.
+
+    ``into`` names that folder in the help (``"--out"``, ``"each output"``).
+    """
+    p.add_argument("--keep-all", action="store_true",
+                   help="keep every Gaussian, removed ones with zero opacity")
+    p.add_argument("--report", action="store_true", help="write diagnostic pictures and HTML")
+    p.add_argument("--copy-images", action="store_true",
+                   help=f"copy the input images into {into} (by default its cameras.json "
+                        "refers to them where they are)")
 
 
 @contextlib.contextmanager

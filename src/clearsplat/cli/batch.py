@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from ._common import Bar, add_config_args, config_from_args, warn
+from ._common import (Bar, add_config_args, add_filter_output_args, config_from_args,
+                      warn)
 
 
 def add_parser(sub) -> None:
@@ -25,12 +26,7 @@ def add_parser(sub) -> None:
                    help="CPUs each scene asks Ray for (default: 1)")
     b.add_argument("--num-cpus", type=int, metavar="N",
                    help="CPUs of the local Ray instance (default: all; ignored with --address)")
-    b.add_argument("--keep-all", action="store_true",
-                   help="keep every Gaussian, removed ones with zero opacity")
-    b.add_argument("--report", action="store_true", help="write diagnostic pictures and HTML")
-    b.add_argument("--copy-images", action="store_true",
-                   help="copy the input images into each output (by default its cameras.json "
-                        "refers to them where they are)")
+    add_filter_output_args(b, into="each output")
     b.add_argument("--force", action="store_true",
                    help="filter every scene again, replacing earlier outputs")
     add_config_args(b)

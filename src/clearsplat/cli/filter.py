@@ -5,7 +5,8 @@ from __future__ import annotations
 import warnings
 
 from ..errors import ClearsplatError
-from ._common import Bar, add_config_args, config_from_args, warn
+from ._common import (Bar, add_config_args, add_filter_output_args, config_from_args,
+                      warn)
 
 
 def add_parser(sub) -> None:
@@ -14,12 +15,7 @@ def add_parser(sub) -> None:
                                  "gaussians.ply")
     f.add_argument("--out", required=True,
                    help="output folder (created; written in full or not at all)")
-    f.add_argument("--keep-all", action="store_true",
-                   help="keep every Gaussian, removed ones with zero opacity")
-    f.add_argument("--report", action="store_true", help="write diagnostic pictures and HTML")
-    f.add_argument("--copy-images", action="store_true",
-                   help="copy the input images into --out (by default the output bundle's "
-                        "cameras.json refers to them where they are)")
+    add_filter_output_args(f, into="--out")
     f.add_argument("--force", action="store_true",
                    help="replace an --out folder that an earlier clearsplat run wrote")
     add_config_args(f)
