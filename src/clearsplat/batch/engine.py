@@ -8,7 +8,6 @@ cluster is used (``pip install 'clearsplat[batch]'``).
 from __future__ import annotations
 
 import contextlib
-import os
 import socket
 from typing import Callable, Iterator, Sequence
 
@@ -135,11 +134,3 @@ def run_tasks(ray, fn: Callable, items: Sequence, *, options: Sequence[dict] | N
         for ref in pending:             # interrupted: do not leave work running
             with contextlib.suppress(Exception):
                 ray.cancel(ref, force=True)
-
-
-def local_cpus() -> int:
-    """CPUs this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:              # not Linux
-        return os.cpu_count() or 1
