@@ -138,6 +138,15 @@ def test_path_passes_through_the_key_cameras():
         assert np.allclose(p.K, cam.K)
 
 
+def test_path_frame_count_is_checked():
+    from clearsplat.camera_path import MAX_FRAMES
+    assert len(interpolate_cameras(_cams(), 7)) == 7
+    for bad in (0, 2.5, True, MAX_FRAMES + 1, 10 ** 8):
+        with pytest.raises(ClearsplatError) as e:
+            interpolate_cameras(_cams(), bad)
+        assert e.value.field == "frames"
+
+
 def test_path_between_cameras_is_smooth_and_novel():
     cams = _cams()
     path = interpolate_cameras(cams, 61)
@@ -233,6 +242,10 @@ def test_render_bad_input(filtered, tmp_path, capsys):
     code, _, err = run(["render", scene_dir, "--camera", tmp_path / "cam.json",
                         "--out", tmp_path / "x"], capsys)
     assert code == 2 and "frames[0].camera_to_world" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+    code, _, err = run(["render", scene_dir, "--path", scene_dir / "cameras.json", "--frames",
+                        10 ** 8, "--out", tmp_path / "x"], capsys)
+    assert code == 2 and "frames" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "x").exists()
 
 
@@ -339,7 +352,6 @@ def test_export_drops_removed_unless_keep_all(filtered, tmp_path, capsys):
 
 
 def test_export_bad_removed_npy(filtered, tmp_path, capsys):
-    import shutil
     _, out = filtered
     bad = tmp_path / "bad"
     shutil.copytree(out, bad)

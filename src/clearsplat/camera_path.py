@@ -16,7 +16,11 @@ from scipy.spatial.transform import Rotation, Slerp
 from .cameras import Camera
 from .errors import ClearsplatError
 
-__all__ = ["interpolate_cameras", "resize_camera", "parse_size"]
+__all__ = ["interpolate_cameras", "resize_camera", "parse_size", "MAX_FRAMES"]
+
+#: The most cameras :func:`interpolate_cameras` puts on a path (over an hour of video at 24 fps);
+#: a larger count is a typo, and its camera list alone would not fit in memory.
+MAX_FRAMES = 100_000
 
 
 def _catmull_rom(points: np.ndarray, seg: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -53,7 +57,7 @@ def interpolate_cameras(cameras: Sequence[Camera], num_frames: int, *,
     cameras : sequence of Camera
         The key cameras (at least one). The path starts at the first and ends at the last.
     num_frames : int
-        Number of cameras on the path (at least 1). Key camera ``k`` of ``K`` sits at path
+        Number of cameras on the path (1 to :data:`MAX_FRAMES`). Key camera ``k`` of ``K`` sits at path
         parameter ``k / (K - 1)``; frames are spaced evenly in that parameter, so every key
         camera is on the path when ``num_frames - 1`` is a multiple of ``K - 1``.
     width, height : int, optional
@@ -70,14 +74,15 @@ def interpolate_cameras(cameras: Sequence[Camera], num_frames: int, *,
     Raises
     ------
     ClearsplatError
-        On an empty camera list or a non-positive ``num_frames``.
+        On an empty camera list or a ``num_frames`` out of range.
     """
     cameras = list(cameras)
     if not cameras:
         raise ClearsplatError("no cameras to interpolate", field="cameras")
-    if isinstance(num_frames, bool) or int(num_frames) != num_frames or num_frames < 1:
-        raise ClearsplatError(f"must be a positive whole number, got {num_frames}",
-                              field="frames")
+    if (isinstance(num_frames, bool) or int(num_frames) != num_frames
+            or not 1 <= num_frames <= MAX_FRAMES):
+        raise ClearsplatError(f"must be a whole number from 1 to {MAX_FRAMES:,}, got "
+                              f"{num_frames}", field="frames")
     num_frames = int(num_frames)
     base = cameras[0]
     # intrinsics in the first camera's size, so that they interpolate
