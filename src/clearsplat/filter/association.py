@@ -108,7 +108,8 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
 
 def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
                         margin: float, reference_rgbs: list[np.ndarray] | None = None,
-                        color_threshold: float | None = None) -> np.ndarray:
+                        color_threshold: float | None = None, images: list | None = None,
+                        align_scale: bool = False) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -130,7 +131,15 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         With ``reference_rgbs``: a Gaussian also qualifies when its view's input colour differs
         from the reference colour at its pixel by more than this (L1 over RGB) and it does not
         lie behind the reference surface (it touches it: the foot of an object on the floor).
+    images : list of (H, W, 3) float, optional
+        The input colours for the colour test (default: ``scene.images``).
+    align_scale : bool
+        Divide each view's depths by their median ratio to the reference depth first
+        (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own depth
+        scale (``FilterConfig.depth_scale_align``).
     """
+    from .robust import view_depth_scales
+    images = scene.images if images is None else images
     out = np.zeros(len(scene), dtype=bool)
     for view, members in enumerate(index.members):
         if members.size == 0:
@@ -140,9 +149,11 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
+        if align_scale:
+            z = z / view_depth_scales([z], [behind])[0]
         front = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind)
         if color_threshold is not None and reference_rgbs is not None:
-            image = scene.images[view].reshape(-1, 3)
+            image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)
             differ = np.zeros(members.size, dtype=bool)
             with np.errstate(invalid="ignore"):

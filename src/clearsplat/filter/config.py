@@ -91,6 +91,18 @@ class FilterConfig:
         images (slow reference path).
     num_threads : int or None
         Threads of the native rasterizer (None: all cores).
+    photometric_align : bool
+        Map each input image per channel (affine, robust fit) to the colours the other views
+        render there before the similarity, the colour test of ``refine_color`` and the
+        verification errors (:func:`clearsplat.filter.robust.photometric_alignment`): views that
+        differ in exposure or white balance then compare like with like. False: the paper.
+    depth_scale_align : bool
+        Judge "in front of the static surface" (``refine``) in each view's own depth scale: its
+        depths divided by their median ratio to the static reference first. False: the paper.
+    verify_tolerance : int
+        Radius in pixels: a verification error counts only the distance of a render colour to the
+        range of the input colours within this radius (0: the plain L1 error, the paper), so that
+        a small misregistration is evidence neither way.
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -120,6 +132,9 @@ class FilterConfig:
     incremental: bool = True
     num_threads: int | None = None
     device: str = "cpu"
+    photometric_align: bool = False
+    depth_scale_align: bool = False
+    verify_tolerance: int = 0
 
     def __post_init__(self):
         if not isinstance(self.device, str) or not (
@@ -149,6 +164,10 @@ class FilterConfig:
             raise ClearsplatError("must be at least 1", field="num_verify_views")
         if self.dilation < 0:
             raise ClearsplatError("must be >= 0", field="dilation")
+        if isinstance(self.verify_tolerance, bool) or not isinstance(self.verify_tolerance, int) \
+                or self.verify_tolerance < 0:
+            raise ClearsplatError(f"must be an integer >= 0, got {self.verify_tolerance!r}",
+                                  field="verify_tolerance")
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
             raise ClearsplatError(f"tau1 ({self.tau1}) must be below tau2 ({self.tau2})",
                                   field="tau1/tau2")
@@ -183,9 +202,11 @@ PRESETS = {
     # The paper's procedure exactly (DINOv3 features need a local checkpoint).
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
                           refine="none", verify_mask="proposals", verify_holes="count",
-                          min_score=0.0),
+                          min_score=0.0, photometric_align=False, depth_scale_align=False,
+                          verify_tolerance=0),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
-                                min_score=0.0),
+                                min_score=0.0, photometric_align=False, depth_scale_align=False,
+                                verify_tolerance=0),
 }

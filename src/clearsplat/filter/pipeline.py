@@ -22,6 +22,7 @@ from .association import (ViewIndex, dilate, pixels_of, region_gaussians, reveal
                           verification_views)
 from .config import FilterConfig
 from .proposal import ViewProposal, propose_view
+from .robust import photometric_alignment, tolerant_images
 from .verify import Partial, Verifier
 
 __all__ = ["Candidate", "FilterResult", "filter_distractors"]
@@ -211,7 +212,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                "can be verified, the scene is returned unchanged")
         warnings.warn(msg, stacklevel=2)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
-    sims = extractor.similarity(np.stack(scene.images), np.stack([r.rgb for r in excl]))
+    images = _aligned_images(scene, excl, config)
+    sims = extractor.similarity(np.stack(images), np.stack([r.rgb for r in excl]))
     lap("features")
     proposals: list[ViewProposal] = []
     for i in range(scene.num_views):
@@ -231,7 +233,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     revealing = None
     if config.refine == "depth":
         revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
-                                        margin=config.refine_margin)
+                                        margin=config.refine_margin,
+                                        align_scale=config.depth_scale_align)
     elif config.refine == "static-depth":
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
@@ -249,7 +252,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
         revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                         reference_rgbs=reference_rgb,
-                                        color_threshold=config.refine_color)
+                                        color_threshold=config.refine_color, images=images,
+                                        align_scale=config.depth_scale_align)
     lap("refine")
 
     def refined(g: np.ndarray) -> np.ndarray:
@@ -271,9 +275,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     lap = _Laps(timings, "verification")
     # Tile patches are a CPU feature: on a GPU every verification render is a whole image.
     incremental = config.incremental and not on_gpu
-    verifier = Verifier(views, scene.images, epsilon=config.epsilon,
+    lo, hi = _verification_images(images, config)
+    verifier = Verifier(views, lo, epsilon=config.epsilon,
                         incremental=incremental,
-                        hole_alpha=config.eta if _skip_holes(config, scene) else 0.0)
+                        hole_alpha=config.eta if _skip_holes(config, scene) else 0.0,
+                        images_hi=hi)
     support_px = [p.support_pixels for p in proposals]
 
     def expand(c: Candidate) -> np.ndarray:
@@ -307,6 +313,23 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     timings["verification"] = time.perf_counter() - t0
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, config)
+
+
+def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:
+    """The input images the comparisons use: as given, or (``photometric_align``) mapped to
+    the colours of each view's exclusion render."""
+    if not config.photometric_align:
+        return scene.images
+    return [photometric_alignment(im, r.rgb, r.alpha) for im, r in zip(scene.images, excl)]
+
+
+def _verification_images(images: list, config: FilterConfig) -> tuple[list, list | None]:
+    """Lower and upper bounds of the input colours for verification (``verify_tolerance``);
+    the images themselves and None when the tolerance is 0."""
+    if config.verify_tolerance <= 0:
+        return images, None
+    bounds = [tolerant_images(im, config.verify_tolerance) for im in images]
+    return [b[0] for b in bounds], [b[1] for b in bounds]
 
 
 def _skip_holes(config: FilterConfig, scene: Scene) -> bool:

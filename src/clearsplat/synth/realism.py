@@ -127,7 +127,7 @@ def _depth_edges(z: np.ndarray) -> np.ndarray:
     """0..1: how strongly a pixel sits on a depth edge (log-depth gradient)."""
     lz = np.log(z)
     g = np.hypot(ndimage.sobel(lz, 0), ndimage.sobel(lz, 1)) / 8.0
-    return np.clip(g / 0.05, 0.0, 1.0)
+    return np.clip((g - 0.02) / 0.1, 0.0, 1.0)
 
 
 def realistic_reconstruction(world, realism="plain", *, seed: int = 0,
@@ -206,7 +206,7 @@ def _view_gaussians(cam, image, z, transient, *, seed, view, soft, multi, coarse
             return a.reshape(hc, c, wc, c, *a.shape[2:]).mean(axis=(1, 3))
         zc = np.exp(pool(np.log(z)))
         colour, opacity, footprint = pool(colour), pool(opacity), pool(footprint) * c
-        truth = pool(transient.astype(np.float64)) >= 0.5
+        truth = (pool(transient.astype(np.float64)) >= 0.5).reshape(-1)
         # Cell centres: the camera with its pixel grid scaled by 1/c.
         K = cam.K.copy()
         K[:2] /= c

@@ -1,0 +1,114 @@
+"""Options that make the filter hold on what real backbones predict.
+
+Real feed-forward predictions disagree between views in ways that are not distractors: the
+input images differ in exposure and white balance, each view's depth has its own scale, and
+estimated cameras are off by a fraction of a degree. Each function here undoes one of those
+before the paper's comparisons, and each is switched by a :class:`FilterConfig` field (off in
+the ``paper`` presets):
+
+- :func:`photometric_alignment` (``photometric_align``): a per-view, per-channel affine map that
+  brings the input image to the colours of what the other views render there; similarities,
+  colour tests and verification errors then compare like with like.
+- :func:`view_depth_scales` (``depth_scale_align``): the scale of each view's depths relative to
+  what the other views render, so that "in front of the static surface" is judged in the
+  view's own depth scale.
+- :func:`tolerant_images` (``verify_tolerance``): per pixel, the range of the input colours
+  within a small radius; a render colour inside that range counts as no error, so a small
+  misregistration (pose error, edge bleeding) does not count as evidence either way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images"]
+
+#: Pixels used for a fit need the render this opaque.
+_FIT_MIN_ALPHA = 0.9
+#: Fewer usable pixels than this and the map stays the identity.
+_FIT_MIN_PIXELS = 64
+
+
+def _fit_affine(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Robust fit of ``y ~ a * x + b``: least squares, then again on the best 60 %."""
+    keep = np.ones(x.size, dtype=bool)
+    a, b = 1.0, 0.0
+    for _ in range(3):
+        xs, ys = x[keep], y[keep]
+        var = xs.var()
+        if xs.size < _FIT_MIN_PIXELS or var < 1e-8:
+            return 1.0, 0.0
+        a = float(((xs - xs.mean()) * (ys - ys.mean())).mean() / var)
+        b = float(ys.mean() - a * xs.mean())
+        r = np.abs(y - (a * x + b))
+        keep = r <= np.quantile(r, 0.6)
+    return a, b
+
+
+def photometric_alignment(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray,
+                          *, ignore: np.ndarray | None = None) -> np.ndarray:
+    """``image`` mapped per channel to the colours of ``render_rgb``, (H, W, 3) float32.
+
+    Fits ``render ~ a_c * image + b_c`` per channel over the pixels where the render is opaque
+    (accumulated opacity >= 0.9) and not in ``ignore``, robustly (the worst 40 % of the pixels,
+    where the views disagree for other reasons, are left out of the final fit), and applies it
+    to the whole image. Gains outside [0.5, 2] are treated as a failed fit (identity).
+
+    Parameters
+    ----------
+    image : (H, W, 3) float
+        The input image of a view.
+    render_rgb, render_alpha : (H, W, 3), (H, W) float
+        A render of the same camera from the other views' Gaussians (R_i^-i).
+    ignore : (H, W) bool, optional
+        Pixels left out of the fit.
+    """
+    ok = render_alpha >= _FIT_MIN_ALPHA
+    if ignore is not None:
+        ok &= ~ignore
+    out = np.array(image, dtype=np.float32, copy=True)
+    if ok.sum() < _FIT_MIN_PIXELS:
+        return out
+    x = np.asarray(image, dtype=np.float64)[ok]
+    y = np.asarray(render_rgb, dtype=np.float64)[ok]
+    for c in range(3):
+        a, b = _fit_affine(x[:, c], y[:, c])
+        if 0.5 <= a <= 2.0:
+            out[..., c] = (a * out[..., c] + b).astype(np.float32)
+    return out
+
+
+def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.ndarray]
+                      ) -> list[float]:
+    """Per view, the median ratio of its own depth to the reference depth at the same pixels.
+
+    Parameters
+    ----------
+    own_depths : list of (M_i,) float
+        Camera-i depths of view i's Gaussians, at pixels where the reference is valid.
+    reference_depths : list of (M_i,) float
+        The reference depth (what the other views render) at those pixels, positive.
+
+    Returns
+    -------
+    list of float
+        ``exp(median(log(own / reference)))`` per view; 1 where nothing can be compared. The
+        median ignores the minority of pixels where a distractor stands in front.
+    """
+    out = []
+    for z, ref in zip(own_depths, reference_depths):
+        ok = (z > 0) & (ref > 0)
+        if ok.sum() < _FIT_MIN_PIXELS:
+            out.append(1.0)
+            continue
+        out.append(float(np.exp(np.median(np.log(z[ok] / ref[ok])))))
+    return out
+
+
+def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel minimum and maximum of ``image`` over a (2r+1)^2 window, (H, W, 3) each."""
+    size = (2 * int(radius) + 1, 2 * int(radius) + 1, 1)
+    image = np.asarray(image, dtype=np.float32)
+    return (ndimage.minimum_filter(image, size=size, mode="nearest"),
+            ndimage.maximum_filter(image, size=size, mode="nearest"))
