@@ -109,7 +109,8 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
 def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
                         margin: float, reference_rgbs: list[np.ndarray] | None = None,
                         color_threshold: float | None = None, images: list | None = None,
-                        align_scale: bool = False) -> np.ndarray:
+                        align_scale: bool = False,
+                        reference_rgbs_hi: list[np.ndarray] | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -137,6 +138,9 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         Divide each view's depths by their median ratio to the reference depth first
         (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own depth
         scale (``FilterConfig.depth_scale_align``).
+    reference_rgbs_hi : list of (H, W, 3) float, optional
+        Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
+        the colour difference is the L1 distance to that box (``FilterConfig.verify_tolerance``).
     """
     from .robust import view_depth_scales
     images = scene.images if images is None else images
@@ -157,7 +161,12 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             ref = reference_rgbs[view].reshape(-1, 3)
             differ = np.zeros(members.size, dtype=bool)
             with np.errstate(invalid="ignore"):
-                diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
+                if reference_rgbs_hi is None:
+                    diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
+                else:
+                    x = image[pix[valid]]
+                    hi = reference_rgbs_hi[view].reshape(-1, 3)[pix[valid]]
+                    diff = (np.maximum(ref[pix[valid]] - x, 0) + np.maximum(x - hi, 0)).sum(-1)
             differ[valid] = diff > color_threshold       # False where the reference is NaN
             front |= differ & (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
         out[members] = front

@@ -103,6 +103,13 @@ class FilterConfig:
         Radius in pixels: a verification error counts only the distance of a render colour to the
         range of the input colours within this radius (0: the plain L1 error, the paper), so that
         a small misregistration is evidence neither way.
+    min_relative_score : float
+        Also require each test's removal to take away more than this share of the
+        change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
+        :attr:`clearsplat.filter.verify.Partial.relative_score`). A distractor's removal
+        explains most of the error where it changes the render; static content that the views
+        merely place a little differently (pose error, depth scale) trades one error for another
+        and scores a small share even when its score is positive. 0: the paper.
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -135,6 +142,7 @@ class FilterConfig:
     photometric_align: bool = False
     depth_scale_align: bool = False
     verify_tolerance: int = 0
+    min_relative_score: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.device, str) or not (
@@ -164,6 +172,9 @@ class FilterConfig:
             raise ClearsplatError("must be at least 1", field="num_verify_views")
         if self.dilation < 0:
             raise ClearsplatError("must be >= 0", field="dilation")
+        if not 0.0 <= self.min_relative_score < 1.0:
+            raise ClearsplatError(f"must be in [0, 1), got {self.min_relative_score}",
+                                  field="min_relative_score")
         if isinstance(self.verify_tolerance, bool) or not isinstance(self.verify_tolerance, int) \
                 or self.verify_tolerance < 0:
             raise ClearsplatError(f"must be an integer >= 0, got {self.verify_tolerance!r}",
@@ -203,10 +214,10 @@ PRESETS = {
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
-                          verify_tolerance=0),
+                          verify_tolerance=0, min_relative_score=0.0),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
-                                verify_tolerance=0),
+                                verify_tolerance=0, min_relative_score=0.0),
 }

@@ -22,7 +22,7 @@ from .association import (ViewIndex, dilate, pixels_of, region_gaussians, reveal
                           verification_views)
 from .config import FilterConfig
 from .proposal import ViewProposal, propose_view
-from .robust import photometric_alignment, tolerant_images
+from .robust import photometric_alignment, tolerant_images, tolerant_reference
 from .verify import Partial, Verifier
 
 __all__ = ["Candidate", "FilterResult", "filter_distractors"]
@@ -250,10 +250,15 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             # (the edge of what they see) mixes in the background and proves nothing.
             covered = static.alpha >= _COLOR_MIN_ALPHA
             reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
+        reference_hi = None
+        if config.verify_tolerance > 0:
+            reference, reference_rgb, reference_hi = tolerant_reference(
+                reference, reference_rgb, config.verify_tolerance)
         revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                         reference_rgbs=reference_rgb,
                                         color_threshold=config.refine_color, images=images,
-                                        align_scale=config.depth_scale_align)
+                                        align_scale=config.depth_scale_align,
+                                        reference_rgbs_hi=reference_hi)
     lap("refine")
 
     def refined(g: np.ndarray) -> np.ndarray:
@@ -332,6 +337,14 @@ def _verification_images(images: list, config: FilterConfig) -> tuple[list, list
     return [b[0] for b in bounds], [b[1] for b in bounds]
 
 
+def _passes(total: Partial, config: FilterConfig) -> bool:
+    """A test's verdict: score above ``min_score`` and, where ``min_relative_score`` asks for
+    it, a large enough share of the error it touches explained by the removal."""
+    if not total.score > config.min_score:
+        return False
+    return config.min_relative_score <= 0 or total.relative_score > config.min_relative_score
+
+
 def _skip_holes(config: FilterConfig, scene: Scene) -> bool:
     """Whether verification leaves out the holes a removal opens (``verify_holes``)."""
     if config.verify_holes == "auto":
@@ -383,7 +396,7 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, co
         c.scores["individual"] = s
         if c.gaussians.size == 0:
             c.reason = "no Gaussians in region"
-        elif s > config.min_score:
+        elif _passes(totals[c.index], config):
             c.reason = "passed individual test"
         else:
             c.reason = "rejected by individual test"
@@ -402,7 +415,7 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
     for c in second:
         s = totals[c.index].score
         c.scores["additional"] = s
-        if s > config.min_score:
+        if _passes(totals[c.index], config):
             survivors.append(c)
         else:
             c.reason = "rejected by additional test"
@@ -433,7 +446,7 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
             (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
         total.add(p)
         report("joint", j + 1, scene.num_views)
-    ok = total.score > config.min_score
+    ok = _passes(total, config)
     for c in survivors:
         c.scores["joint"] = total.score
         c.accepted = ok

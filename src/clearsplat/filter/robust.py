@@ -12,7 +12,8 @@ the ``paper`` presets):
 - :func:`view_depth_scales` (``depth_scale_align``): the scale of each view's depths relative to
   what the other views render, so that "in front of the static surface" is judged in the
   view's own depth scale.
-- :func:`tolerant_images` (``verify_tolerance``): per pixel, the range of the input colours
+- :func:`tolerant_images` and :func:`tolerant_reference` (``verify_tolerance``): per pixel,
+  the range of the input colours
   within a small radius; a render colour inside that range counts as no error, so a small
   misregistration (pose error, edge bleeding) does not count as evidence either way.
 """
@@ -22,7 +23,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images"]
+__all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
+           "tolerant_reference"]
 
 #: Pixels used for a fit need the render this opaque.
 _FIT_MIN_ALPHA = 0.9
@@ -112,3 +114,28 @@ def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndar
     image = np.asarray(image, dtype=np.float32)
     return (ndimage.minimum_filter(image, size=size, mode="nearest"),
             ndimage.maximum_filter(image, size=size, mode="nearest"))
+
+
+def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius: int
+                       ) -> tuple[list, list, list]:
+    """The static reference of ``refine`` made tolerant to a misregistration of ``radius`` px.
+
+    Returns ``(depths, rgb_lo, rgb_hi)``: per view, the nearest reference depth within the
+    radius (a Gaussian is in front only if it is in front of every surface the other views show
+    nearby; 0 stays "nothing there" where the whole window is empty), and the per-channel range
+    of the reference colours within the radius (NaN where the pixel's own colour is NaN).
+    """
+    size = 2 * int(radius) + 1
+    out_d, out_lo, out_hi = [], [], []
+    for d, rgb in zip(depths, rgbs):
+        far = np.where(d > 0, d, np.inf)
+        near = ndimage.minimum_filter(far, size=size, mode="nearest")
+        out_d.append(np.where(np.isfinite(near), near, 0.0))
+        missing = np.isnan(rgb)
+        lo = ndimage.minimum_filter(np.where(missing, np.inf, rgb), size=(size, size, 1),
+                                    mode="nearest")
+        hi = ndimage.maximum_filter(np.where(missing, -np.inf, rgb), size=(size, size, 1),
+                                    mode="nearest")
+        out_lo.append(np.where(missing, np.nan, lo))
+        out_hi.append(np.where(missing, np.nan, hi))
+    return out_d, out_lo, out_hi

@@ -32,10 +32,21 @@ class Partial:
 
     num: float = 0.0
     den: float = 0.0
+    #: Sum of ``w * E`` (the change-weighted error before the removal), for
+    #: :attr:`relative_score`.
+    err: float = 0.0
 
     def add(self, other: "Partial") -> None:
         self.num += other.num
         self.den += other.den
+        self.err += other.err
+
+    @property
+    def relative_score(self) -> float:
+        """The share of the change-weighted error before the removal that it takes away:
+        ``sum(w delta) / sum(w E)`` (0 when there is none). Near 1 for a removal that explains
+        what it touches (a distractor), near 0 where it only trades one error for another."""
+        return self.num / self.err if self.err > 0 else 0.0
 
     @property
     def score(self) -> float:
@@ -76,16 +87,18 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
     if image_hi is not None:
         return _tolerant_terms(w, base[valid], after[valid], img[valid],
                                image_hi[valid].astype(np.float64))
-    delta = np.abs(base[valid] - img[valid]).sum(-1) - np.abs(after[valid] - img[valid]).sum(-1)
-    return Partial(float(np.sum(w * delta)), float(np.sum(w)))
+    e_before = np.abs(base[valid] - img[valid]).sum(-1)
+    delta = e_before - np.abs(after[valid] - img[valid]).sum(-1)
+    return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
 
 
 def _tolerant_terms(w, base, after, lo, hi) -> Partial:
     """``change_weighted_terms`` with the error measured to the box [lo, hi] per channel."""
     def err(x):
         return (np.maximum(lo - x, 0.0) + np.maximum(x - hi, 0.0)).sum(-1)
-    delta = err(base) - err(after)
-    return Partial(float(np.sum(w * delta)), float(np.sum(w)))
+    e_before = err(base)
+    delta = e_before - err(after)
+    return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
 
 
 def tile_pixels(view: PreparedView, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
