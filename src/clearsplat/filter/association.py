@@ -11,6 +11,10 @@ from scipy import ndimage
 from ..render import PreparedView, contributions
 from ..scene import Scene
 
+#: With ``align_scale``: "in front" means beyond this many robust standard deviations of the
+#: view's depth ratio to the reference.
+_SPREAD_FACTOR = 2.5
+
 __all__ = [
     "ViewIndex", "region_gaussians", "member_pixels", "revealing_gaussians", "pixels_of",
     "verification_views", "dilate",
@@ -135,12 +139,13 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     images : list of (H, W, 3) float, optional
         The input colours for the colour test (default: ``scene.images``).
     align_scale : bool
-        Divide each view's depths by their median ratio to the reference depth first
-        (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own depth
-        scale (``FilterConfig.depth_scale_align``).
+        Divide each view's depths by their median ratio to the reference depth first, and widen
+        ``margin`` to 2.5 robust standard deviations of that ratio where the view's depth is
+        noisier (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own
+        depth scale and noise (``FilterConfig.depth_scale_align``).
     reference_rgbs_hi : list of (H, W, 3) float, optional
         Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
-        the colour difference is the L1 distance to that box (``FilterConfig.verify_tolerance``).
+        the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
     """
     from .robust import view_depth_scales
     images = scene.images if images is None else images
@@ -153,9 +158,13 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
+        view_margin = margin
         if align_scale:
-            z = z / view_depth_scales([z], [behind])[0]
-        front = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind)
+            scale, spread = view_depth_scales([z], [behind])[0]
+            z = z / scale
+            # "In front" beyond this view's own depth noise, not only beyond the fixed margin.
+            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
         if color_threshold is not None and reference_rgbs is not None:
             image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)

@@ -103,6 +103,14 @@ class FilterConfig:
         Radius in pixels: a verification error counts only the distance of a render colour to the
         range of the input colours within this radius (0: the plain L1 error, the paper), so that
         a small misregistration is evidence neither way.
+    refine_tolerance : int or "auto"
+        Radius in pixels of the misregistration the ``refine`` tests tolerate: a Gaussian is in
+        front of the static reference only if it is in front of the nearest surface the other
+        views render within this radius, and its colour differs only if it lies outside the range
+        of their colours there (:func:`clearsplat.filter.robust.tolerant_reference`). 0: the
+        tests at the Gaussian's own pixel. ``"auto"``: per view, the misregistration measured
+        between its input and its exclusion render
+        (:func:`clearsplat.filter.robust.misregistration`; 0 where the views agree).
     min_relative_score : float
         Also require each test's removal to take away more than this share of the
         change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
@@ -142,6 +150,7 @@ class FilterConfig:
     photometric_align: bool = False
     depth_scale_align: bool = False
     verify_tolerance: int = 0
+    refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.0
 
     def __post_init__(self):
@@ -175,10 +184,13 @@ class FilterConfig:
         if not 0.0 <= self.min_relative_score < 1.0:
             raise ClearsplatError(f"must be in [0, 1), got {self.min_relative_score}",
                                   field="min_relative_score")
-        if isinstance(self.verify_tolerance, bool) or not isinstance(self.verify_tolerance, int) \
-                or self.verify_tolerance < 0:
-            raise ClearsplatError(f"must be an integer >= 0, got {self.verify_tolerance!r}",
-                                  field="verify_tolerance")
+        for name in ("verify_tolerance", "refine_tolerance"):
+            value = getattr(self, name)
+            if name == "refine_tolerance" and value == "auto":
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ClearsplatError(f"must be an integer >= 0{' or auto' * (name[0] == 'r')}"
+                                      f", got {value!r}", field=name)
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
             raise ClearsplatError(f"tau1 ({self.tau1}) must be below tau2 ({self.tau2})",
                                   field="tau1/tau2")
@@ -214,10 +226,12 @@ PRESETS = {
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
-                          verify_tolerance=0, min_relative_score=0.0),
+                          verify_tolerance=0, refine_tolerance=0,
+                          min_relative_score=0.0),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
-                                verify_tolerance=0, min_relative_score=0.0),
+                                verify_tolerance=0, refine_tolerance=0,
+                          min_relative_score=0.0),
 }

@@ -22,7 +22,8 @@ from .association import (ViewIndex, dilate, pixels_of, region_gaussians, reveal
                           verification_views)
 from .config import FilterConfig
 from .proposal import ViewProposal, propose_view
-from .robust import photometric_alignment, tolerant_images, tolerant_reference
+from .robust import (misregistration, photometric_alignment, tolerant_images,
+                     tolerant_reference)
 from .verify import Partial, Verifier
 
 __all__ = ["Candidate", "FilterResult", "filter_distractors"]
@@ -251,9 +252,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             covered = static.alpha >= _COLOR_MIN_ALPHA
             reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
         reference_hi = None
-        if config.verify_tolerance > 0:
+        if config.refine_tolerance != 0:
+            radii = config.refine_tolerance
+            if radii == "auto":   # each view's measured misregistration with the others
+                radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
+                         for i in range(scene.num_views)]
             reference, reference_rgb, reference_hi = tolerant_reference(
-                reference, reference_rgb, config.verify_tolerance)
+                reference, reference_rgb, radii)
         revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                         reference_rgbs=reference_rgb,
                                         color_threshold=config.refine_color, images=images,

@@ -24,10 +24,12 @@ import numpy as np
 from scipy import ndimage
 
 __all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
-           "tolerant_reference"]
+           "tolerant_reference", "misregistration"]
 
 #: Pixels used for a fit need the render this opaque.
 _FIT_MIN_ALPHA = 0.9
+#: A shift counts as misregistration when it lowers the mismatch by this share.
+_SHIFT_GAIN = 0.1
 #: Fewer usable pixels than this and the map stays the identity.
 _FIT_MIN_PIXELS = 64
 
@@ -82,8 +84,9 @@ def photometric_alignment(image: np.ndarray, render_rgb: np.ndarray, render_alph
 
 
 def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.ndarray]
-                      ) -> list[float]:
-    """Per view, the median ratio of its own depth to the reference depth at the same pixels.
+                      ) -> list[tuple[float, float]]:
+    """Per view, the median ratio of its own depth to the reference depth at the same pixels,
+    and the spread of that ratio.
 
     Parameters
     ----------
@@ -94,17 +97,21 @@ def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.nd
 
     Returns
     -------
-    list of float
-        ``exp(median(log(own / reference)))`` per view; 1 where nothing can be compared. The
-        median ignores the minority of pixels where a distractor stands in front.
+    list of (scale, spread)
+        ``scale = exp(median(log(own / reference)))`` and ``spread`` the robust standard
+        deviation (1.4826 times the median absolute deviation) of ``log(own / reference)``;
+        ``(1, 0)`` where nothing can be compared. Median and MAD ignore the minority of pixels
+        where a distractor stands in front.
     """
     out = []
     for z, ref in zip(own_depths, reference_depths):
         ok = (z > 0) & (ref > 0)
         if ok.sum() < _FIT_MIN_PIXELS:
-            out.append(1.0)
+            out.append((1.0, 0.0))
             continue
-        out.append(float(np.exp(np.median(np.log(z[ok] / ref[ok])))))
+        r = np.log(z[ok] / ref[ok])
+        med = float(np.median(r))
+        out.append((float(np.exp(med)), float(1.4826 * np.median(np.abs(r - med)))))
     return out
 
 
@@ -116,18 +123,65 @@ def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndar
             ndimage.maximum_filter(image, size=size, mode="nearest"))
 
 
-def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius: int
+def misregistration(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray, *,
+                    max_shift: int = 8) -> int:
+    """How many pixels ``image`` and a render of the same camera are out of register.
+
+    Finds the integer image shift (within ``max_shift`` pixels, searched at half resolution on
+    grey levels) that best matches the opaque part of the render (accumulated opacity >= 0.9)
+    to the image in mean absolute difference, and returns its Chebyshev length in pixels: 0
+    for views that agree (exact cameras), a few pixels where the cameras handed to the filter
+    are off (estimated poses) or a view's depth scale disagrees with the others'.
+    """
+    grey = np.asarray(image, np.float64).mean(-1)
+    ref = np.asarray(render_rgb, np.float64).mean(-1)
+    ok = np.asarray(render_alpha) >= _FIT_MIN_ALPHA
+    h, w = (grey.shape[0] // 2) * 2, (grey.shape[1] // 2) * 2
+
+    def half(a):
+        return a[:h, :w].reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
+    g, r, m = half(grey), half(ref), half(ok.astype(np.float64)) == 1.0
+    k = max(int(max_shift) // 2, 1)
+    if m[k:-k, k:-k].sum() < _FIT_MIN_PIXELS:
+        return 0
+    best, best_cost, zero_cost = (0, 0), np.inf, np.inf
+    core = (slice(k, g.shape[0] - k), slice(k, g.shape[1] - k))
+    gc = g[core]
+    for dy in range(-k, k + 1):
+        for dx in range(-k, k + 1):
+            sl = (slice(k + dy, g.shape[0] - k + dy), slice(k + dx, g.shape[1] - k + dx))
+            valid = m[sl]
+            cost = np.abs(gc - r[sl])[valid].mean()
+            if dy == 0 and dx == 0:
+                zero_cost = cost
+            if cost < best_cost:
+                best, best_cost = (dy, dx), cost
+    # No misregistration unless a shift explains the difference clearly better than none
+    # (parallax and disocclusions favour small shifts by a little on any pair of views).
+    if best_cost > (1.0 - _SHIFT_GAIN) * zero_cost:
+        return 0
+    return 2 * max(abs(best[0]), abs(best[1]))
+
+
+def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
                        ) -> tuple[list, list, list]:
-    """The static reference of ``refine`` made tolerant to a misregistration of ``radius`` px.
+    """The static reference of ``refine`` made tolerant to a misregistration of ``radius`` px
+    (one radius for every view, or a list with one per view; 0 leaves a view as it is).
 
     Returns ``(depths, rgb_lo, rgb_hi)``: per view, the nearest reference depth within the
     radius (a Gaussian is in front only if it is in front of every surface the other views show
     nearby; 0 stays "nothing there" where the whole window is empty), and the per-channel range
     of the reference colours within the radius (NaN where the pixel's own colour is NaN).
     """
-    size = 2 * int(radius) + 1
+    radii = [radius] * len(depths) if np.isscalar(radius) else list(radius)
     out_d, out_lo, out_hi = [], [], []
-    for d, rgb in zip(depths, rgbs):
+    for d, rgb, r in zip(depths, rgbs, radii):
+        if r <= 0:
+            out_d.append(d)
+            out_lo.append(rgb)
+            out_hi.append(rgb)
+            continue
+        size = 2 * int(r) + 1
         far = np.where(d > 0, d, np.inf)
         near = ndimage.minimum_filter(far, size=size, mode="nearest")
         out_d.append(np.where(np.isfinite(near), near, 0.0))

@@ -55,7 +55,7 @@ SCENARIOS = ("plain",) + ARTIFACTS + ("all",)
 
 # Strengths, chosen so that inputs are reproduced at about 25-32 dB by their own Gaussians and
 # test views at about 17-25 dB (docs/benchmarks.md measures both).
-_DEPTH_SCALE_SD = 0.04        # per-view global depth scale bias (relative)
+_DEPTH_SCALE_SD = 0.02        # per-view global depth scale bias (relative)
 _DEPTH_NOISE = 0.02           # low-frequency relative depth noise
 _DEPTH_BLUR = 1.2             # inverse-depth blur (pixels): flying pixels at edges
 _GAIN_SD = 0.06               # per-view exposure (log gain)
