@@ -40,6 +40,14 @@ ABLATIONS = {
     "single<tau2": "default+single_threshold=true",
     "single<tau1": "default+second_range=false",
     "no-verify": "default+verify=false",
+    # Options for real backbones (docs/method.md, "Real backbones"): the default's one off,
+    # the others on.
+    "no-refine-tol": "default+refine_tolerance=0",
+    "refine-tol=2": "default+refine_tolerance=2",
+    "+photo-align": "default+photometric_align=true",
+    "+depth-scale": "default+depth_scale_align=true",
+    "+verify-tol=2": "default+verify_tolerance=2",
+    "+rel-score=0.5": "default+min_relative_score=0.5",
 }
 
 

@@ -193,8 +193,8 @@ def _view_gaussians(cam, image, z, transient, *, seed, view, soft, multi, coarse
     opacity = np.full((h, w), 0.9)
     colour = image.astype(np.float64)
     if soft:
-        colour = ndimage.gaussian_filter(colour, (0.6, 0.6, 0), mode="nearest")
-        colour = colour + 0.015 * rng.standard_normal(colour.shape)
+        colour = ndimage.gaussian_filter(colour, (1.0, 1.0, 0), mode="nearest")
+        colour = colour + 0.045 * rng.standard_normal(colour.shape)
         footprint = footprint * rng.uniform(1.0, 1.6, (h, w))
         opacity = 0.35 + 0.65 * rng.beta(2.5, 1.2, (h, w))
         opacity = opacity * (1.0 - 0.5 * _depth_edges(z))
