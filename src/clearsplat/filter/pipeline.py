@@ -75,6 +75,12 @@ class Candidate:
     accepted: bool = False
     reason: str = "not verified"
 
+    def __repr__(self) -> str:
+        scores = ", ".join(f"{k} {v:+.4f}" for k, v in self.scores.items())
+        return (f"Candidate({self.index}: view {self.view}, range {self.range}, "
+                f"{int(self.pixels.sum()):,} pixels, {self.gaussians.size:,} Gaussians"
+                f"{'; ' + scores if scores else ''}; {self.reason})")
+
     def record(self) -> dict:
         """A JSON-friendly summary."""
         return {
@@ -110,6 +116,13 @@ class FilterResult:
     timings: dict
     config: FilterConfig
     warnings: list = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        accepted = sum(c.accepted for c in self.candidates)
+        warned = f"; {len(self.warnings)} warning(s)" if self.warnings else ""
+        return (f"FilterResult(removed {int((~self.keep).sum()):,} of {self.keep.size:,} "
+                f"Gaussians; {accepted} of {len(self.candidates)} candidates accepted; "
+                f"{self.config.describe()}; {self.timings.get('total', 0.0):.2f} s{warned})")
 
     @property
     def removed(self) -> np.ndarray:
@@ -197,7 +210,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     own = [index.mask(i, n) for i in range(scene.num_views)]
     views, full, excl = [], [], []
     if on_gpu:  # one upload of the Gaussians, shared by the views
-        from .._gsplat import prepare_gsplat_views
+        from ..render.gsplat import prepare_gsplat_views
         gpu_views = prepare_gsplat_views(scene, scene.cameras, device=config.device)
     for i, cam in enumerate(scene.cameras):
         pv = gpu_views[i] if on_gpu else prepare(scene, cam, num_threads=threads)
@@ -400,7 +413,8 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, co
         s = totals[c.index].score
         c.scores["individual"] = s
         if c.gaussians.size == 0:
-            c.reason = "no Gaussians in region"
+            c.reason = ("no Gaussians in region" if config.refine == "none"
+                        else "no Gaussians left: none survived refinement")
         elif _passes(totals[c.index], config):
             c.reason = "passed individual test"
         else:
