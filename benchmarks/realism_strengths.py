@@ -55,7 +55,7 @@ def _picture(world, name, seed, folder) -> None:
     panels = [scene.images[0], own, test, world.test_images[0]]
     strip = np.concatenate([np.clip(p, 0, 1) for p in panels], axis=1)
     img = Image.fromarray((strip * 255 + 0.5).astype(np.uint8))
-    img = img.resize((img.width // 2, img.height // 2), Image.LANCZOS)
+    img = img.resize((img.width // 2, img.height // 2), Image.LANCZOS).quantize(colors=64)
     os.makedirs(folder, exist_ok=True)
     img.save(os.path.join(folder, f"realism-{name}.png"), optimize=True)
 

@@ -147,3 +147,21 @@ def test_inputs_are_reproduced_by_their_own_gaussians(world):
     r = render(s, s.cameras[1], keep=s.view_id == 1)
     from clearsplat.metrics import psnr
     assert reproduction_psnr(s)[1] == pytest.approx(psnr(r.rgb, s.images[1]))
+
+
+def test_bench_runs_a_realism_scenario_and_reports_the_exact_gain():
+    from clearsplat.bench import format_tables, run_suite
+    from clearsplat.filter import FilterConfig
+    rows = run_suite(families=("street",), views=(3,), height=48, width=80,
+                     configs={"default": FilterConfig()}, realism=("plain", "coarse"))
+    assert [r["realism"] for r in rows] == ["plain", "coarse"]
+    assert rows[1]["gaussians"] == 3 * 24 * 40
+    # Removing exactly the distractors must change (and here improve) the test views: a wrong
+    # truth (all False) would leave them as they are.
+    for r in rows:
+        assert r["distractor_gaussians"] > 0
+        assert r["exact"]["psnr"] > r["baseline"]["psnr"]
+    text = format_tables(rows)
+    assert "scenario" in text and "coarse" in text and "of exact" in text
+    with pytest.raises(ClearsplatError, match="unknown realism"):
+        run_suite(families=("street",), views=(3,), height=48, width=80, realism=("fog",))

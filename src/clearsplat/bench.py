@@ -242,12 +242,14 @@ def format_tables(rows: list[dict]) -> str:
     agg = aggregate(rows)
     with_real = any(a["realism"] != "plain" for a in agg)
 
+    cw = max([12] + [len(a["config"]) + 1 for a in agg])
+
     def head(a=None):
         if a is None:
             return (f"{'scenario':<10}" if with_real else "") + \
-                f"{'config':<12}{'family':<8}{'views':>5}"
+                f"{'config':<{cw}}{'family':<8}{'views':>5}"
         return (f"{a['realism']:<10}" if with_real else "") + \
-            f"{a['config']:<12}{a['family']:<8}{a['views']:>5}"
+            f"{a['config']:<{cw}}{a['family']:<8}{a['views']:>5}"
 
     lines = ["Quality on test views (mean over seeds); LPIPS n/a: no local weights",
              f"{head()}  {'PSNR base':>9} {'+filter':>8} {'gain':>6} {'exact':>6} "
