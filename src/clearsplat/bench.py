@@ -310,8 +310,10 @@ def write_outputs(rows: list[dict], out_dir: str | os.PathLike,
         import matplotlib.pyplot as plt
     except ImportError:
         return paths
-    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=120)
     keys = sorted({(a["realism"], a["config"], a["family"]) for a in agg})
+    # Many series (realism scenarios): a wider figure with the legend beside the axes.
+    wide = len(keys) > 8
+    fig, ax = plt.subplots(figsize=(9, 4.5) if wide else (5, 3.2), dpi=120)
     for (real, cfg, fam) in keys:
         pts = sorted((a["views"], a["filtered_psnr"] - a["baseline_psnr"]) for a in agg
                      if (a["realism"], a["config"], a["family"]) == (real, cfg, fam))
@@ -320,7 +322,10 @@ def write_outputs(rows: list[dict], out_dir: str | os.PathLike,
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("input views")
     ax.set_ylabel("PSNR gain over baseline (dB)")
-    ax.legend(fontsize=7)
+    if wide:
+        ax.legend(fontsize=5, ncol=2, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    else:
+        ax.legend(fontsize=7)
     fig.tight_layout()
     p = os.path.join(out_dir, "gain.png")
     fig.savefig(p)
