@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import os
 import warnings
-
-import numpy as np
 
 from ..errors import ClearsplatError
 from ._common import Bar, add_config_args, config_from_args, warn
@@ -21,34 +17,17 @@ def add_parser(sub) -> None:
     f.add_argument("--keep-all", action="store_true",
                    help="keep every Gaussian, removed ones with zero opacity")
     f.add_argument("--report", action="store_true", help="write diagnostic pictures and HTML")
+    f.add_argument("--copy-images", action="store_true",
+                   help="copy the input images into --out (by default the output bundle's "
+                        "cameras.json refers to them where they are)")
     f.add_argument("--force", action="store_true",
                    help="replace an --out folder that an earlier clearsplat run wrote")
     add_config_args(f)
     f.set_defaults(func=run)
 
 
-def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False,
-                  source: str | None = None) -> None:
-    """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder)."""
-    from ..io import write_ply
-    from ..report import write_report
-
-    if keep_all:
-        kept = result.apply(scene)
-        write_ply(os.path.join(folder, "gaussians.ply"), kept.gaussians,
-                  view_id=kept.view_id, pixel_id=kept.pixel_id)
-    else:
-        sub = scene.subset(result.keep)
-        write_ply(os.path.join(folder, "gaussians.ply"), sub.gaussians,
-                  view_id=sub.view_id, pixel_id=sub.pixel_id)
-    np.save(os.path.join(folder, "removed.npy"), np.ascontiguousarray(result.removed, dtype=bool))
-    with open(os.path.join(folder, "summary.json"), "w") as f:
-        json.dump(result.summary(), f, indent=1)
-    if report:
-        write_report(os.path.join(folder, "report"), scene, result, source=source)
-
-
 def run(args) -> int:
+    from ..batch import write_filter_outputs
     from ..filter import filter_distractors
     from ..io import load_scene
     from ..io.output import check_output_folder, output_folder
@@ -72,9 +51,13 @@ def run(args) -> int:
             warn(message)
 
     with output_folder(args.out, inputs=[args.scene], force=args.force,
-                       command="filter") as tmp:
-        write_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
-                      source=args.scene)
+                       command="filter") as tmp, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")             # the video's GIF fallback
+        write_filter_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
+                             source=args.scene, located_at=args.out,
+                             copy_images=args.copy_images)
+    for w in caught:
+        warn(str(w.message))
     s = result.summary()
     print(f"removed {s['removed']:,} of {s['gaussians']:,} Gaussians "
           f"({s['accepted']} of {len(s['candidates'])} candidates); wrote {args.out}")
