@@ -12,10 +12,15 @@ the ``paper`` presets):
 - :func:`view_depth_scales` (``depth_scale_align``): the scale of each view's depths relative to
   what the other views render, so that "in front of the static surface" is judged in the
   view's own depth scale.
-- :func:`tolerant_images` and :func:`tolerant_reference` (``verify_tolerance``): per pixel,
-  the range of the input colours
+- :func:`misregistration` and :func:`tolerant_reference` (``refine_tolerance``): how many
+  pixels a view's input and the other views' render are out of register, and the refinement's
+  static reference widened by that radius (nearest surface, range of colours), so that static
+  edges a few pixels off do not count as standing in front.
+- :func:`tolerant_images` (``verify_tolerance``): per pixel, the range of the input colours
   within a small radius; a render colour inside that range counts as no error, so a small
   misregistration (pose error, edge bleeding) does not count as evidence either way.
+- ``min_relative_score`` (in :mod:`clearsplat.filter.verify` and the pipeline): a test passes
+  only if the removal takes away a large enough share of the error it touches.
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ from ..scene import Gaussians, Scene, rgb_to_sh_dc
 from .backbone import _imperfect_depth, rotation_to_quat
 
 __all__ = ["ARTIFACTS", "SCENARIOS", "parse_realism", "realistic_reconstruction",
-           "reproduction_psnr"]
+           "reproduction_psnr", "estimated_camera"]
 
 #: The single artifacts, each a scenario of ``clearsplat bench --realism``.
 ARTIFACTS = ("soft", "depth", "multi", "exposure", "pose", "coarse")
