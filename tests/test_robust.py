@@ -143,7 +143,7 @@ def test_options_are_validated_and_off_in_the_paper_presets():
 
 @pytest.fixture(scope="module")
 def soft_scene():
-    world = make_world("street", num_views=3, seed=1, height=64, width=112)
+    world = make_world("street", num_views=3, seed=1, height=48, width=80)
     return realistic_reconstruction(world, "all", seed=1)
 
 
@@ -159,6 +159,7 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     assert [c.scores for c in a.candidates] == [c.scores for c in b.candidates]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("option", sorted(NEW))
 def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option):
     scene, _ = soft_scene

@@ -130,7 +130,7 @@ def run_case(case: BenchCase, *, log: Callable[[str], None] = lambda s: None,
     exact_q = _quality(scene, ~truth, world.test_cameras, world.test_images)
     rows = []
     for name, cfg in case.configs.items():
-        log(f"{case.realism} {case.family} {case.num_views} views seed {case.seed}: {name}")
+        log(f"{_where(case)}: {name}")
         res = filter_distractors(scene, config=cfg, extractor=extractor)
         q = _quality(scene, res.keep, world.test_cameras, world.test_images)
         stats = removal_stats(res.removed, truth)
@@ -183,12 +183,18 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
     with ray_cluster(address=address, num_cpus=workers) as ray:
         for i, result in run_tasks(ray, run_cell, [(c, extractor) for c in cases]):
             c = cases[i]
-            where = f"{c.realism} {c.family} {c.num_views} views seed {c.seed}"
+            where = _where(c)
             if isinstance(result, TaskFailed):
                 raise RuntimeError(f"{where}: {result}")
             results[i] = result
             log(f"{where}: done")
     return [row for rows in results for row in rows]
+
+
+def _where(case: BenchCase) -> str:
+    """A cell's name in progress lines (the scenario only where it is not the plain one)."""
+    name = f"{case.family} {case.num_views} views seed {case.seed}"
+    return name if case.realism == "plain" else f"{case.realism} {name}"
 
 
 def run_cell(job: tuple) -> list[dict]:
