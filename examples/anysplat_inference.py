@@ -119,7 +119,7 @@ def _synthetic_prediction():
     from clearsplat.synth import make_world
 
     world = make_world("object", num_views=3, seed=2, height=48, width=64)
-    v, h, w = len(world.cameras), 48, 64
+    h, w = 48, 64
     enc, c2w, intr = [], [], []
     for cam in world.cameras:
         w2c = cam.world_to_camera

@@ -85,3 +85,41 @@ def test_import_refuses_to_overwrite_and_names_bad_views(exported, tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "vertices" in err[0]
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+
+def test_import_with_colmap_cameras_views_by_name_and_scaled_cameras(exported, tmp_path):
+    """A COLMAP model of the full-resolution capture (with a camera the model did not use),
+    the context views picked by image name, images at half the cameras' resolution."""
+    from clearsplat.io import read_image
+    root, scene, order = exported
+    model = tmp_path / "sparse" / "0"
+    model.mkdir(parents=True)
+    images = tmp_path / "ctx"
+    images.mkdir()
+    cams_lines, img_lines, names = [], [], []
+    extra = scene.cameras[0].camera_to_world.copy()
+    extra[:3, 3] += 0.3
+    poses = [c.camera_to_world for c in scene.cameras] + [extra]
+    for i, c2w in enumerate(poses):
+        cam = scene.cameras[min(i, V - 1)]
+        cams_lines.append(f"{i + 1} PINHOLE {2 * W} {2 * H} {2 * cam.fx} {2 * cam.fy} "
+                          f"{2 * cam.cx} {2 * cam.cy}")
+        r = c2w[:3, :3].T
+        t = -r @ c2w[:3, 3]
+        x, y, z, w = Rotation.from_matrix(r).as_quat()
+        name = f"frame_{9 - i}.png"                   # sorted by name: reversed
+        img_lines += [f"{i + 1} {w} {x} {y} {z} {t[0]} {t[1]} {t[2]} {i + 1} {name}", ""]
+        names.append(name)
+    (model / "cameras.txt").write_text("\n".join(cams_lines) + "\n")
+    (model / "images.txt").write_text("\n".join(img_lines) + "\n")
+    for i in range(V):
+        write_image(images / names[i], read_image(root / f"images/{i:03d}.png"))
+    bundle = tmp_path / "bundle"
+    assert main(["import", "depthsplat", str(root / "gaussians.ply"), "--cameras",
+                 str(tmp_path), "--images", str(images), "--views", ",".join(names[:V]),
+                 "--out", str(bundle)]) == 0
+    imported = load_scene(bundle)
+    assert np.array_equal(imported.view_id, scene.view_id[order])
+    assert np.array_equal(imported.pixel_id, scene.pixel_id[order])
+    assert json.loads((bundle / "import.json").read_text())["inside_pixel"] == 1.0
+    assert np.allclose(imported.cameras[1].K, scene.cameras[1].K)

@@ -25,7 +25,8 @@ from clearsplat.io.importers import _residuals, import_export
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore")     # the upstream code's own warnings
 H = W = 128
-TRAINING_ONLY = ["torchvision", "huggingface_hub", "diff_gaussian_rasterization", "gsplat", "xformers", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
+TRAINING_ONLY = ["torchvision", "huggingface_hub", "diff_gaussian_rasterization", "gsplat",
+                 "xformers", "wandb", "lightning", "pytorch_lightning", "lightning_fabric",
                  "lpips", "moviepy", "skvideo", "cv2", "colorspacious", "hydra", "omegaconf",
                  "dacite", "matplotlib", "beartype"]
 
@@ -291,7 +292,7 @@ def test_yonosplat_encoder(upstream_path, tmp_path):
     assert np.allclose(scene.gaussians.means, dump["means"][0].reshape(-1, 3).numpy(),
                        atol=1e-5)
     # test_step's export: trim 8, opacity > 0.01, "h w spp v", local rotations, raw opacity
-    v, h, w = 2, size, size
+    h, w = size, size
     op = rearrange(gaussians.opacities, "() (v h w spp) -> h w spp v", spp=1, h=h, w=w)
     mask = torch.zeros_like(op, dtype=torch.bool)
     mask[8:-8, 8:-8] = True

@@ -19,12 +19,12 @@ from scipy.spatial.transform import Rotation
 
 __all__ = ["write_vertex_ply", "pixelsplat_export_ply", "noposplat_export_ply",
            "depthsplat_save_gaussian_ply", "mvsplat_figure_export", "pixelsplat_visualizer_export",
+           "pixelsplat_figure_export",
            "yonosplat_test_step_export", "resplat_save_gaussian_ply", "anysplat_inference_export"]
 
 
 def write_vertex_ply(path, columns):
     """A binary little-endian PLY with float32 properties in the given order (plyfile's)."""
-    names = [k for k, _ in columns]
     table = np.concatenate([np.asarray(c, dtype=np.float64).reshape(len(c), -1)
                             for _, c in columns], axis=1).astype("<f4")
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(table)}"]
@@ -36,7 +36,6 @@ def write_vertex_ply(path, columns):
             header += [f"property float {k}_{i}" for i in range(c.shape[1])]
     header.append("end_header")
     path.write_bytes(("\n".join(header) + "\n").encode() + table.tobytes())
-    del names
 
 
 def _cols(means, scales, rot_wxyz, f_dc, f_rest, opacity_column):
@@ -141,6 +140,16 @@ def pixelsplat_visualizer_export(path, pred):
     model's order with the camera-frame ``visualization_dump["rotations"]``."""
     pixelsplat_export_ply(path, pred["extrinsics"][0], pred["means"], pred["scales"],
                           pred["rotations"], pred["harmonics"], pred["opacities"])
+
+
+def pixelsplat_figure_export(path, pred, *, height, width):
+    """pixelSplat's paper figure script (``src/paper/generate_point_cloud_figure.py``): 8-pixel
+    trim, ``h w spp v`` order, the camera-frame ``visualization_dump["rotations"]`` as they
+    are, then ``export_ply`` (its far-plane cut keeps all here)."""
+    v = len(pred["extrinsics"])
+    t = lambda x: _hwsv(x, v, height, width, 8)                    # noqa: E731
+    pixelsplat_export_ply(path, pred["extrinsics"][0], t(pred["means"]), t(pred["scales"]),
+                          t(pred["rotations"]), t(pred["harmonics"]), t(pred["opacities"]))
 
 
 def yonosplat_test_step_export(path, pred, *, height, width):

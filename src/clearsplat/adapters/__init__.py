@@ -25,7 +25,8 @@ from .sh_rotation import rotate_sh, sh_basis
 
 __all__ = [
     "from_depthsplat", "from_mvsplat", "from_pixelsplat", "from_resplat", "from_noposplat",
-    "from_yonosplat", "from_anysplat", "anysplat_voxel_inverse", "from_pixel_aligned", "covariance_to_scales_quats",
+    "from_yonosplat", "from_anysplat", "anysplat_voxel_inverse", "from_pixel_aligned",
+    "covariance_to_scales_quats",
     "scales_quats_to_covariance", "rotate_sh", "sh_basis", "SCALE_FLOOR_RATIO",
     "SCALE_FLOOR_ABS", "NEGATIVE_TOLERANCE",
 ]

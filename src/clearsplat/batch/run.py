@@ -150,7 +150,8 @@ def _scene_task(job: dict) -> dict:
     t0 = time.perf_counter()
     try:
         r = filter_scene(job["scene"], job["out"], config=job["config"],
-                         keep_all=job["keep_all"], report=job["report"], force=job["force"])
+                         keep_all=job["keep_all"], report=job["report"],
+                         copy_images=job["copy_images"], force=job["force"])
     except MemoryError:
         return {"status": "failed", "seconds": time.perf_counter() - t0,
                 "error": "out of memory (see 'memory' in docs/errors.md)"}
@@ -184,7 +185,8 @@ def write_summary(rows: Sequence[dict], out) -> list[Path]:
 
 
 def run_batch(scenes: Sequence, out, *, config=None, keep_all: bool = False,
-              report: bool = False, force: bool = False, address: str | None = None,
+              report: bool = False, copy_images: bool = False, force: bool = False,
+              address: str | None = None,
               num_cpus: int | None = None, cpus_per_scene: float = 1,
               progress: Callable[[str, int, int], None] | None = None,
               on_scene: Callable[[dict], None] | None = None) -> list[dict]:
@@ -198,7 +200,7 @@ def run_batch(scenes: Sequence, out, *, config=None, keep_all: bool = False,
         The batch folder: created, or an earlier batch's folder (resumed).
     config : FilterConfig, optional
         The filter's settings, the same for every scene.
-    keep_all, report : bool
+    keep_all, report, copy_images : bool
         As for ``clearsplat filter``.
     force : bool, default False
         Filter every scene again, replacing earlier outputs. Without it complete outputs
@@ -252,7 +254,7 @@ def run_batch(scenes: Sequence, out, *, config=None, keep_all: bool = False,
         _remove_stale_temporaries(out, rows[i]["scene"])
         todo.append(i)
         jobs.append({"scene": os.fspath(s), "out": os.fspath(dest), "config": config,
-                     "keep_all": keep_all, "report": report,
+                     "keep_all": keep_all, "report": report, "copy_images": copy_images,
                      "force": force or state == "partial"})
     total, done = len(scenes), len(scenes) - len(todo)
 

@@ -28,6 +28,9 @@ def add_parser(sub) -> None:
     b.add_argument("--keep-all", action="store_true",
                    help="keep every Gaussian, removed ones with zero opacity")
     b.add_argument("--report", action="store_true", help="write diagnostic pictures and HTML")
+    b.add_argument("--copy-images", action="store_true",
+                   help="copy the input images into each output (by default its cameras.json "
+                        "refers to them where they are)")
     b.add_argument("--force", action="store_true",
                    help="filter every scene again, replacing earlier outputs")
     add_config_args(b)
@@ -50,7 +53,8 @@ def run(args) -> int:
 
     try:
         rows = run_batch(scenes, args.out, config=config, keep_all=args.keep_all,
-                         report=args.report, force=args.force, address=args.address,
+                         report=args.report, copy_images=args.copy_images, force=args.force,
+                         address=args.address,
                          num_cpus=args.num_cpus, cpus_per_scene=args.cpus_per_scene,
                          progress=bar, on_scene=on_scene)
     except KeyboardInterrupt:
