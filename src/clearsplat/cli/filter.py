@@ -30,7 +30,6 @@ def add_parser(sub) -> None:
 def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False) -> None:
     """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder)."""
     from ..io import write_ply
-    from ..report import write_report
 
     if keep_all:
         kept = result.apply(scene)
@@ -44,6 +43,7 @@ def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool
     with open(os.path.join(folder, "summary.json"), "w") as f:
         json.dump(result.summary(), f, indent=1)
     if report:
+        from ..report import write_report
         write_report(os.path.join(folder, "report"), scene, result)
 
 
