@@ -236,8 +236,7 @@ def _split_columns(rows: np.ndarray, props) -> dict:
         # The usual 3DGS file: 4-byte properties only. Transpose the (n, k) table of 32-bit
         # words block by block (a block stays in cache) into one array per column.
         k = len(props)
-        words = np.frombuffer(rows.data, dtype=np.uint32).reshape(n, k) if n else \
-            np.empty((0, k), np.uint32)
+        words = rows.view(np.uint32).reshape(n, k)
         out = [np.empty(n, dtype=np.uint32) for _ in props]
         block = np.empty((k, _BLOCK_ROWS), dtype=np.uint32)
         for a in range(0, n, _BLOCK_ROWS):
