@@ -25,8 +25,8 @@ import numpy as np
 
 from clearsplat import Camera, Gaussians, Scene
 from clearsplat.cameras import look_at
-from clearsplat import _render
 from clearsplat.render import prepare, render
+from clearsplat.render._kernels import max_threads
 from clearsplat.scene import rgb_to_sh_dc
 
 WIDTH, HEIGHT, FOCAL = 448, 256, 400.0
@@ -112,7 +112,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, nargs="*", default=None,
                         help="thread counts to time (default: 1 and all cores)")
     args = parser.parse_args()
-    threads = args.threads or sorted({1, _render.max_threads()})
+    threads = args.threads or sorted({1, max_threads()})
 
     t = time.perf_counter()
     scene, images = build_scene()

@@ -8,7 +8,15 @@ Definitions shared with the native code (``src/clearsplat/cpp``):
 
 - a Gaussian is binned into the tiles holding a pixel centre ``(col + 0.5, row + 0.5)`` with
   ``|col + 0.5 - u| <= r`` and ``|row + 0.5 - v| <= r`` (per axis), ``r`` the integer radius;
-- a tile's Gaussians are composited by ascending camera z rounded to float32, ties by index.
+- a tile's Gaussians are composited by ascending camera z rounded to float32, ties by index;
+- render settings (``clearsplat.RenderSettings``): ``eps2d`` is added to the 2D covariance's
+  diagonal; antialiased mode multiplies the opacity by ``sqrt(det(cov2d) / det(cov2d + eps2d
+  I))`` before culling and compositing (gsplat's ``rasterize_mode="antialiased"``); Gaussians
+  with ``r <= radius_clip`` are culled; SH bands above ``sh_degree`` are ignored.
+
+SH degree 4 is written here as the textbook real spherical harmonics (with the 3DGS signs),
+independently of the native code; ``tests/test_gsplat.py`` checks this module against gsplat's
+own pure-PyTorch functions where a gsplat wheel is installed.
 """
 
 from __future__ import annotations
@@ -22,6 +30,14 @@ SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.092548
          0.5462742152960396)
 SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
          -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+
+# Degree 4: N_4m * P_4^|m|(z) * {cos, sin}(|m| phi) r^4 in Cartesian form, with the 3DGS signs
+# ((-1)^m for odd m). N_4m from sqrt((2l + 1) (l - |m|)! / (4 pi (l + |m|)!)) (times sqrt 2).
+_PI = np.pi
+SH_C4 = (0.75 * np.sqrt(35 / _PI), -0.75 * np.sqrt(35 / (2 * _PI)), 0.75 * np.sqrt(5 / _PI),
+         -0.75 * np.sqrt(5 / (2 * _PI)), 3 / 16 * np.sqrt(1 / _PI), -0.75 * np.sqrt(5 / (2 * _PI)),
+         0.375 * np.sqrt(5 / _PI), -0.75 * np.sqrt(35 / (2 * _PI)), 3 / 16 * np.sqrt(35 / _PI))
 
 
 def sh_basis(d: np.ndarray, k: int) -> np.ndarray:
@@ -39,6 +55,13 @@ def sh_basis(d: np.ndarray, k: int) -> np.ndarray:
                  SH_C3[3] * z * (2 * z * z - 3 * x * x - 3 * y * y),
                  SH_C3[4] * x * (4 * z * z - x * x - y * y), SH_C3[5] * z * (x * x - y * y),
                  SH_C3[6] * x * (x * x - 3 * y * y)]
+    if k > 16:
+        x2, y2, z2 = x * x, y * y, z * z
+        cols += [SH_C4[0] * x * y * (x2 - y2), SH_C4[1] * y * z * (3 * x2 - y2),
+                 SH_C4[2] * x * y * (7 * z2 - 1), SH_C4[3] * y * z * (7 * z2 - 3),
+                 SH_C4[4] * (35 * z2 * z2 - 30 * z2 + 3), SH_C4[5] * x * z * (7 * z2 - 3),
+                 SH_C4[6] * (x2 - y2) * (7 * z2 - 1), SH_C4[7] * x * z * (x2 - 3 * y2),
+                 SH_C4[8] * (x2 * x2 - 6 * x2 * y2 + y2 * y2)]
     return np.stack(cols, axis=1)
 
 
@@ -53,8 +76,14 @@ def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
     ], axis=1)
 
 
-def project(gaussians, camera, *, near: float = 0.01) -> dict:
-    """Per-Gaussian projection (float64). Culled Gaussians have ``visible`` False."""
+def project(gaussians, camera, *, near: float = 0.01, settings=None) -> dict:
+    """Per-Gaussian projection (float64). Culled Gaussians have ``visible`` False.
+
+    ``settings``: a ``clearsplat.RenderSettings`` (None: classic 3DGS, eps2d 0.3)."""
+    antialiased = bool(getattr(settings, "antialiased", False))
+    eps2d = float(getattr(settings, "eps2d", 0.3))
+    radius_clip = float(getattr(settings, "radius_clip", 0.0))
+    sh_degree = getattr(settings, "sh_degree", None)
     means = gaussians.means.astype(np.float64)
     n = means.shape[0]
     W = camera.world_to_camera[:3, :3]
@@ -77,9 +106,14 @@ def project(gaussians, camera, *, near: float = 0.01) -> dict:
     J[:, 1, 1] = fy / zs
     J[:, 1, 2] = -fy * yz * zs / zs**2
     T = J @ W
-    cov = T @ sigma @ np.transpose(T, (0, 2, 1)) + 0.3 * np.eye(2)
+    cov0 = T @ sigma @ np.transpose(T, (0, 2, 1))
+    cov = cov0 + eps2d * np.eye(2)
     a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
     det = a * c - b * b
+    opacity = gaussians.opacities.astype(np.float64)
+    if antialiased:
+        det0 = np.linalg.det(cov0)
+        opacity = opacity * np.sqrt(np.maximum(0.0, det0 / np.where(det > 0, det, 1.0)))
     dets = np.where(det > 0, det, 1.0)
     conic = np.stack([c / dets, -b / dets, a / dets], axis=1)
     mid = 0.5 * (a + c)
@@ -98,17 +132,19 @@ def project(gaussians, camera, *, near: float = 0.01) -> dict:
 
     d = means - camera.position
     d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
-    k = gaussians.sh.shape[1]
-    colour = np.einsum("nk,nkc->nc", sh_basis(d, k), gaussians.sh.astype(np.float64))
+    k = gaussians.sh.shape[1] if sh_degree is None else min(gaussians.sh.shape[1],
+                                                             (sh_degree + 1) ** 2)
+    colour = np.einsum("nk,nkc->nc", sh_basis(d, k), gaussians.sh[:, :k].astype(np.float64))
     colour = np.maximum(colour + 0.5, 0.0)
 
-    visible = (z >= near) & (det > 0) & on_image
+    visible = (z >= near) & (det > 0) & on_image & (radius > radius_clip) \
+        & (opacity >= 1.0 / 255.0)
     return {"visible": visible, "u": u, "v": v, "conic": conic, "depth": z, "radius": radius,
-            "rect": rect, "colour": colour, "opacity": gaussians.opacities.astype(np.float64)}
+            "rect": rect, "colour": colour, "opacity": opacity}
 
 
 def render(gaussians, camera, *, keep=None, background=(0.0, 0.0, 0.0), near: float = 0.01,
-           mask=None):
+           mask=None, settings=None):
     """Render like ``clearsplat.render``; also return the contributions at ``mask`` pixels.
 
     Returns
@@ -116,7 +152,7 @@ def render(gaussians, camera, *, keep=None, background=(0.0, 0.0, 0.0), near: fl
     rgb (H, W, 3), alpha (H, W), depth (H, W) float64, and a list of
     ``(pixel, gaussian, weight)`` tuples ordered by pixel then front to back.
     """
-    p = project(gaussians, camera, near=near)
+    p = project(gaussians, camera, near=near, settings=settings)
     n = len(gaussians)
     use = p["visible"] & (np.ones(n, bool) if keep is None else np.asarray(keep))
     width, height = camera.width, camera.height

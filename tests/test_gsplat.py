@@ -40,7 +40,7 @@ def _skip_if_gpu_ready():
 
 
 def test_missing_gsplat_raises_import_error_with_hint():
-    from clearsplat._gsplat import render_gsplat
+    from clearsplat.render.gsplat import render_gsplat
     g, cam = _scene(n=3)
     _skip_if_gpu_ready()
     with pytest.raises(ImportError, match="pip install gsplat"):
@@ -48,7 +48,7 @@ def test_missing_gsplat_raises_import_error_with_hint():
 
 
 def test_bad_input_is_reported_before_the_gpu():
-    from clearsplat._gsplat import render_gsplat
+    from clearsplat.render.gsplat import render_gsplat
     g, cam = _scene(n=3)
     with pytest.raises(ClearsplatError) as e:
         render_gsplat(g, cam, background=(0, 0))
@@ -63,7 +63,7 @@ def _need_cuda_gsplat():
     pytest.importorskip("gsplat")
     if not torch.cuda.is_available():
         pytest.skip("no CUDA GPU")
-    from clearsplat import _gsplat
+    from clearsplat.render import gsplat as _gsplat
     return _gsplat
 
 
@@ -222,7 +222,7 @@ def _assert_same(a, b, *, exact_depth=False):
 
 
 def test_gsplat_view_equals_prepared_view(fake_gsplat):
-    from clearsplat._gsplat import prepare_gsplat_views
+    from clearsplat.render.gsplat import prepare_gsplat_views
     g, cams = _world()
     fake_gsplat.add(*cams)
     views = prepare_gsplat_views(g, cams, device="cpu")
@@ -295,7 +295,7 @@ def test_gsplat_view_equals_prepared_view(fake_gsplat):
 
 
 def test_gsplat_view_projection_is_kept_once(fake_gsplat):
-    from clearsplat._gsplat import prepare_gsplat
+    from clearsplat.render.gsplat import prepare_gsplat
     g, cams = _world(1, n=200, sh_degree=0)
     fake_gsplat.add(cams[0])
     gv = prepare_gsplat(g, cams[0], device="cpu")
@@ -321,7 +321,7 @@ def test_gsplat_view_projection_is_kept_once(fake_gsplat):
 
 
 def test_gsplat_view_empty_scene(fake_gsplat):
-    from clearsplat._gsplat import prepare_gsplat
+    from clearsplat.render.gsplat import prepare_gsplat
     g, cams = _world(n=20)
     g = g.subset(np.zeros(len(g), bool))
     gv = prepare_gsplat(g, cams[0], device="cpu")
@@ -333,7 +333,7 @@ def test_gsplat_view_empty_scene(fake_gsplat):
 
 
 def test_render_gsplat_through_fake_equals_cpu(fake_gsplat):
-    from clearsplat._gsplat import render_gsplat
+    from clearsplat.render.gsplat import render_gsplat
     g, cams = _world(3, n=300, sh_degree=3)
     fake_gsplat.add(cams[1])
     keep = np.random.default_rng(3).uniform(size=len(g)) > 0.2
@@ -342,7 +342,7 @@ def test_render_gsplat_through_fake_equals_cpu(fake_gsplat):
 
 
 def test_gsplat_view_bad_input(fake_gsplat):
-    from clearsplat._gsplat import prepare_gsplat, upload_gaussians
+    from clearsplat.render.gsplat import prepare_gsplat, upload_gaussians
     g, cams = _world(n=50)
     fake_gsplat.add(cams[0])
     n = len(g)
@@ -384,7 +384,7 @@ def test_gsplat_view_bad_input(fake_gsplat):
 
 
 def test_prepare_gsplat_without_gpu_says_what_is_missing():
-    from clearsplat._gsplat import prepare_gsplat, prepare_gsplat_views
+    from clearsplat.render.gsplat import prepare_gsplat, prepare_gsplat_views
     g, cams = _world(n=20)
     _skip_if_gpu_ready()
     with pytest.raises(ImportError, match="pip install gsplat"):
@@ -440,7 +440,7 @@ def test_tile_rule_matches_gsplat_reference():
     torch = pytest.importorskip("torch")
     pytest.importorskip("gsplat")
     from gsplat.cuda import _torch_impl as gs
-    from clearsplat._gsplat import GsplatView, upload_gaussians
+    from clearsplat.render.gsplat import GsplatView, upload_gaussians
     g, cams = _world(8, n=150)
     cam = cams[0]
     covars, _ = gs._quat_scale_to_covar_preci(torch.as_tensor(g.quats), torch.as_tensor(g.scales),
@@ -515,7 +515,7 @@ def _filter_world():
 def test_filter_on_gpu_path_equals_cpu_filter(fake_gsplat, monkeypatch):
     # The whole GPU path of the filter (views, full-image verification renders, joint test)
     # through the fake gsplat, which is the CPU rasterizer: the same decisions as on the CPU.
-    from clearsplat import _gsplat
+    from clearsplat.render import gsplat as _gsplat
     from clearsplat.features import get_extractor
     from clearsplat.filter import FilterConfig, filter_distractors
     scene = _filter_world()

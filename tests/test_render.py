@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import reference_rasterizer as ref
-from clearsplat import Camera, ClearsplatError, Gaussians, Scene
+from clearsplat import Camera, ClearsplatError, Gaussians, RenderSettings, Scene
 from clearsplat.cameras import look_at
 from clearsplat.render import (Contributions, PreparedView, RenderResult, TilePatch,
                                contributions, prepare, render, render_batch)
@@ -40,9 +40,10 @@ def lone_gaussian(mean, scale, opacity, colour=(1.0, 0.5, 0.25)) -> Gaussians:
                      opacities=[opacity], sh=rgb_to_sh_dc(np.array([[colour]])))
 
 
-def assert_matches_reference(g, cam, *, keep=None, background=(0.0, 0.0, 0.0)):
-    out = render(g, cam, keep=keep, background=background)
-    rgb, alpha, depth, _ = ref.render(g, cam, keep=keep, background=background)
+def assert_matches_reference(g, cam, *, keep=None, background=(0.0, 0.0, 0.0), settings=None):
+    out = render(g, cam, keep=keep, background=background, settings=settings)
+    rgb, alpha, depth, _ = ref.render(g, cam, keep=keep, background=background,
+                                      settings=settings)
     assert out.rgb.dtype == np.float32 and out.rgb.shape == (cam.height, cam.width, 3)
     assert out.alpha.shape == out.depth.shape == (cam.height, cam.width)
     np.testing.assert_allclose(out.rgb, rgb, atol=ATOL, rtol=0)
@@ -62,6 +63,73 @@ def test_matches_reference(width, height, k, seed):
     g = random_gaussians(rng, 250, k=k)
     cam = make_camera(width, height, f=(0.8 * width, 0.9 * width))
     assert_matches_reference(g, cam, background=(0.1, 0.2, 0.3))
+
+
+AA = RenderSettings(antialiased=True, eps2d=0.1)
+
+
+@pytest.mark.parametrize("width,height,k,seed,settings", [
+    (40, 24, 1, 10, AA), (33, 17, 4, 11, AA), (24, 40, 9, 12, AA), (48, 32, 16, 13, AA),
+    (40, 24, 25, 14, AA), (31, 45, 25, 15, RenderSettings()),
+    (40, 24, 25, 20, RenderSettings(antialiased=True, eps2d=0.3, radius_clip=2.0)),
+    (33, 21, 25, 17, RenderSettings(eps2d=0.1, sh_degree=2)),
+    (40, 24, 16, 18, RenderSettings(antialiased=True, sh_degree=0))])
+def test_settings_match_reference(width, height, k, seed, settings):
+    # Many sub-pixel Gaussians, where antialiasing matters most (a feed-forward model's case).
+    rng = np.random.default_rng(seed)
+    g = random_gaussians(rng, 300, k=k)
+    g.scales[::2] *= 0.05
+    cam = make_camera(width, height, f=(0.8 * width, 0.9 * width))
+    out = assert_matches_reference(g, cam, background=(0.1, 0.2, 0.3), settings=settings)
+    if settings.antialiased or settings.eps2d != 0.3:
+        classic = render(g, cam, background=(0.1, 0.2, 0.3))
+        assert np.abs(classic.rgb - out.rgb).max() > 1e-2    # the settings change the image
+
+
+def test_render_uses_the_scene_settings_and_settings_override_them():
+    rng = np.random.default_rng(19)
+    g = random_gaussians(rng, 200, k=25)
+    g.scales[:] *= 0.1
+    cam = make_camera(40, 24)
+    scene = Scene(g, np.zeros(200, np.int32), None, [cam], render_settings=AA)
+    aa = render(g, cam, settings=AA)
+    for a, b in zip(render(scene, cam), aa):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(prepare(scene, cam).render(), aa):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(render_batch(scene, [cam])[0], aa):
+        np.testing.assert_array_equal(a, b)
+    classic = render(g, cam)
+    for a, b in zip(render(scene, cam, settings=RenderSettings()), classic):
+        np.testing.assert_array_equal(a, b)
+    mask = np.ones((24, 40), bool)
+    c = contributions(scene, cam, mask)
+    np.testing.assert_array_equal(c.weight, contributions(g, cam, mask, settings=AA).weight)
+    # SH degree 4 cut to 3 equals the degree-3 Gaussians.
+    cut = Gaussians(g.means, g.scales, g.quats, g.opacities, g.sh[:, :16])
+    for a, b in zip(render(g, cam, settings=RenderSettings(sh_degree=3)), render(cut, cam)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ClearsplatError) as e:
+        render(g, cam, settings={"antialiased": True})
+    assert e.value.field == "settings"
+
+
+def test_classic_renders_bit_identical_to_the_saved_ones():
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent / "data"))
+    try:
+        import classic_renders
+    finally:
+        sys.path.pop(0)
+    saved = np.load(classic_renders.FILE)
+    for name, g, cam, keep, bg in classic_renders.cases():
+        out = render(g, cam, keep=keep, background=bg)
+        assert out.alpha.max() > 0.5
+        for field in ("rgb", "alpha", "depth"):
+            a, b = getattr(out, field), saved[f"{name}_{field}"]
+            assert a.dtype == b.dtype and a.shape == b.shape
+            assert a.tobytes() == b.tobytes(), (name, field)
 
 
 def test_matches_reference_with_keep_and_near_camera_gaussians():
@@ -119,6 +187,48 @@ def test_lone_isotropic_gaussian_profile(opacity, scale, z):
     # depth = D / (1 - T): 1 - (1 - a) in float32 loses up to eps / a relative, a >= 1/255.
     np.testing.assert_allclose(out.depth[expected > 0], z, rtol=2e-5)
     assert (out.depth[expected == 0] == 0).all()
+
+
+@pytest.mark.parametrize("eps2d", [0.1, 0.3])
+def test_antialiased_lone_isotropic_gaussian_closed_form(eps2d):
+    # On the optical axis Sigma2D = (s^2 f^2 / z^2) I = sigma^2 I; antialiased, the footprint is
+    # o * sigma^2 / (sigma^2 + eps) * exp(-r^2 / (2 (sigma^2 + eps))): the compensation
+    # sqrt(det / det_blur) = sigma^2 / (sigma^2 + eps) keeps the integral o * 2 pi sigma^2.
+    f, (w, h), (cx, cy), z, opacity = 60.0, (40, 30), (17.3, 13.8), 2.0, 0.8
+    cam = Camera(K=[[f, 0, cx], [0, f, cy], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=w, height=h)
+    cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    r2 = (cols - cx) ** 2 + (rows - cy) ** 2
+    settings = RenderSettings(antialiased=True, eps2d=eps2d)
+    for scale in (0.004, 0.02, 0.05):
+        var = scale**2 * f**2 / z**2
+        out = render(lone_gaussian([0, 0, z], scale, opacity), cam, settings=settings)
+        peak = opacity * var / (var + eps2d)
+        expected = np.minimum(0.99, peak * np.exp(-r2 / (2 * (var + eps2d))))
+        expected[expected < 1 / 255] = 0
+        np.testing.assert_allclose(out.alpha, expected, atol=1e-6, rtol=1e-5)
+        # The energy is the unblurred Gaussian's, o 2 pi sigma^2, less the tail beyond the
+        # 1/255 cut-off (a fraction 1 / (255 peak) of it); the pixel grid adds a few percent.
+        energy = opacity * 2 * np.pi * var * (1 - 1 / (255 * peak))
+        assert out.alpha.sum() == pytest.approx(energy, rel=0.05)
+    # A Gaussian whose compensated opacity is below 1/255 is culled.
+    tiny = lone_gaussian([0, 0, z], 1e-4, 0.9)
+    assert prepare(tiny, cam, settings=settings).num_visible == 0
+    assert prepare(tiny, cam).num_visible == 1
+
+
+def test_radius_clip_culls_small_footprints():
+    cam = Camera(K=[[60, 0, 20], [0, 60, 15], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=40, height=30)
+    g = Gaussians(means=[[0, 0, 2.0], [0.2, 0, 2.0]], scales=[[0.001] * 3, [0.1] * 3],
+                  quats=[[1.0, 0, 0, 0]] * 2, opacities=[0.9, 0.9], sh=np.zeros((2, 1, 3)))
+    # Radii ceil(3 sqrt(lambda)), lambda = mid + sqrt(max(0.1, mid^2 - det)): 3 for the
+    # point-like one (mid = 0.3009), 10 for the other (mid = 9.3).
+    assert prepare(g, cam, settings=RenderSettings(radius_clip=3)).visible.tolist() == [1]
+    assert sorted(prepare(g, cam, settings=RenderSettings(radius_clip=2.9)).visible) == [0, 1]
+    assert prepare(g, cam, settings=RenderSettings(radius_clip=9.9)).visible.tolist() == [1]
+    assert sorted(prepare(g, cam, settings=RenderSettings(radius_clip=0.1)).visible) == [0, 1]
+    assert prepare(g, cam, settings=RenderSettings(radius_clip=10)).num_visible == 0
 
 
 def test_alpha_is_capped_at_099():
@@ -415,3 +525,89 @@ def test_bad_input_raises():
         view.rerender(view.render().rgb, keep=None, tiles=np.array([0]))
     with pytest.raises(ClearsplatError, match="tiles_list"):
         view.rerender_tiles(keep=None, removals=[np.array([1])], tiles_list=[])
+
+
+# -- package layers ---------------------------------------------------------------------------
+def _imports(path):
+    """Modules of clearsplat a source file imports (anywhere in it), as dotted names."""
+    import ast
+    import pathlib
+    root = pathlib.Path(__import__("clearsplat").__file__).parent
+    rel = path.relative_to(root.parent).with_suffix("")
+    pkg = list(rel.parts[:-1]) if rel.name != "__init__" else list(rel.parts[:-1])
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = pkg[:len(pkg) - node.level + 1]
+            mod = ".".join(base + ([node.module] if node.module else []))
+            out.add(mod)
+            out.update(f"{mod}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("clearsplat"):
+            out.add(node.module)
+    return out
+
+
+def test_render_layers_point_down_and_scene_imports_neither_io_nor_render():
+    import pathlib
+    import clearsplat
+    root = pathlib.Path(clearsplat.__file__).parent
+    below = {"_kernels": set(), "base": {"_kernels"}, "native": {"_kernels", "base"},
+             "gsplat": {"_kernels", "base", "native"},
+             "api": {"_kernels", "base", "native", "gsplat"}}
+    for name, allowed in below.items():
+        inside = {m.split(".")[2] for m in _imports(root / "render" / f"{name}.py")
+                  if m.startswith("clearsplat.render.")}
+        assert inside <= allowed, (name, inside - allowed)
+    for low in ("scene.py", "cameras.py", "errors.py"):
+        up = {m for m in _imports(root / low)
+              if m.split(".")[1:2] and m.split(".")[1] in ("io", "render", "filter", "adapters")}
+        assert not up, (low, up)
+
+
+# -- render settings in bundles ---------------------------------------------------------------
+def test_bundle_round_trips_settings_and_degree_4_sh(tmp_path):
+    import json
+    from clearsplat import load_scene
+    rng = np.random.default_rng(21)
+    g = random_gaussians(rng, 120, k=25)
+    g.opacities[:] = np.clip(g.opacities, 0.01, 0.99)     # the PLY stores logits
+    cam = make_camera(40, 24)
+    scene = Scene(g, np.zeros(120, np.int32), None, [cam], [np.full((24, 40, 3), 0.5)],
+                  render_settings=RenderSettings(antialiased=True, eps2d=0.1, radius_clip=0.1,
+                                                 sh_degree=4))
+    scene.save(tmp_path / "b")
+    doc = json.loads((tmp_path / "b" / "cameras.json").read_text())
+    assert doc["render"] == {"antialiased": True, "eps2d": 0.1, "radius_clip": 0.1,
+                             "sh_degree": 4}
+    header = (tmp_path / "b" / "gaussians.ply").read_bytes().split(b"end_header")[0]
+    assert header.count(b"f_rest_") == 72
+    back = load_scene(tmp_path / "b")
+    assert back.render_settings == scene.render_settings
+    assert back.gaussians.sh.shape == (120, 25, 3)
+    np.testing.assert_allclose(back.gaussians.sh, g.sh, rtol=1e-6)
+    a, b = render(back, cam), render(g, cam, settings=scene.render_settings)
+    np.testing.assert_allclose(a.rgb, b.rgb, atol=1e-5)
+    # Classic scenes write no "render" object and load as classic.
+    Scene(g, np.zeros(120, np.int32), None, [cam]).save(tmp_path / "c")
+    assert "render" not in json.loads((tmp_path / "c" / "cameras.json").read_text())
+    assert load_scene(tmp_path / "c", require_images=False).render_settings.is_classic
+
+
+@pytest.mark.parametrize("render_obj,field", [
+    ({"antialiased": "yes"}, "render.antialiased"), ({"eps2d": -0.1}, "render.eps2d"),
+    ({"eps2d": None}, "render.eps2d"), ({"radius_clip": float("nan")}, "render.radius_clip"),
+    ({"sh_degree": 5}, "render.sh_degree"), ({"sh_degree": 2.0}, "render.sh_degree"),
+    ({"mode": "antialiased"}, "render.mode"), ([True], "render")])
+def test_bad_render_settings_name_the_field(tmp_path, render_obj, field):
+    import json
+    from clearsplat import load_scene
+    g = random_gaussians(np.random.default_rng(22), 10, k=1)
+    g.opacities[:] = 0.5
+    Scene(g, np.zeros(10, np.int32), None, [make_camera(16, 16)]).save(tmp_path / "b")
+    path = tmp_path / "b" / "cameras.json"
+    doc = json.loads(path.read_text())
+    doc["render"] = render_obj
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ClearsplatError) as e:
+        load_scene(tmp_path / "b", require_images=False)
+    assert e.value.field == field and str(e.value.path) == str(path)

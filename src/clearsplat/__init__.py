@@ -10,12 +10,12 @@ from .filter import Candidate, FilterConfig, FilterResult, filter_distractors
 from .io import load_scene, read_ply, save_scene, write_ply
 from .render import (Contributions, PreparedView, RenderResult, TilePatch, contributions,
                      prepare, render, render_batch)
-from .scene import Gaussians, Scene
+from .scene import Gaussians, RenderSettings, Scene
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Camera", "ClearsplatError", "Gaussians", "Scene", "__version__",
+    "Camera", "ClearsplatError", "Gaussians", "Scene", "RenderSettings", "__version__",
     "load_scene", "read_ply", "save_scene", "write_ply",
     "render", "render_batch", "contributions", "prepare",
     "RenderResult", "Contributions", "PreparedView", "TilePatch",

@@ -11,10 +11,13 @@ import numpy as np
 from .cameras import Camera
 from .errors import ClearsplatError
 
-__all__ = ["Gaussians", "Scene", "SH_C0", "rgb_to_sh_dc", "sh_dc_to_rgb"]
+__all__ = ["Gaussians", "Scene", "RenderSettings", "SH_C0", "SH_COUNTS", "rgb_to_sh_dc",
+           "sh_dc_to_rgb"]
 
 #: Zeroth-order real spherical-harmonic constant: colour = SH_C0 * f_dc + 0.5.
 SH_C0 = 0.28209479177387814
+#: Coefficients per colour channel of SH degrees 0 to 4.
+SH_COUNTS = (1, 4, 9, 16, 25)
 
 
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
@@ -25,6 +28,93 @@ def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
 def sh_dc_to_rgb(dc: np.ndarray) -> np.ndarray:
     """Colour of DC coefficients before clamping: ``SH_C0 * dc + 0.5``."""
     return (SH_C0 * np.asarray(dc, dtype=np.float32) + 0.5).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How a scene's Gaussians are rasterized: the settings of the renderer they were made for.
+
+    The defaults are the original 3DGS rasterizer (what pixelSplat, MVSplat, DepthSplat and
+    NoPoSplat render with). Stored in ``cameras.json`` as the top-level ``"render"`` object;
+    every field is described in ``docs/conventions.md`` ("Render settings").
+
+    Attributes
+    ----------
+    antialiased : bool, default False
+        gsplat's ``rasterize_mode="antialiased"``: each Gaussian's opacity is multiplied by
+        ``sqrt(det(Sigma2D) / det(Sigma2D + eps2d I))`` so the blur below does not spread a
+        sub-pixel Gaussian's energy. False: the classic 3DGS rasterizer.
+    eps2d : float, default 0.3
+        Added to the diagonal of every projected 2D covariance, in pixels squared.
+    radius_clip : float, default 0.0
+        Gaussians whose pixel radius is at most this are skipped (gsplat's ``radius_clip``).
+    sh_degree : int or None, default None
+        Highest SH degree the renderer evaluates (0-4); None: all the Gaussians carry. Higher
+        bands than this are ignored.
+    """
+
+    antialiased: bool = False
+    eps2d: float = 0.3
+    radius_clip: float = 0.0
+    sh_degree: int | None = None
+
+    def __post_init__(self):
+        self.validate()
+
+    @property
+    def is_classic(self) -> bool:
+        """True for the original 3DGS rasterizer (the defaults)."""
+        return self == RenderSettings()
+
+    def validate(self, *, path=None, field: str = "render") -> None:
+        """Raise :class:`ClearsplatError` naming the field if a value is out of range."""
+        if not isinstance(self.antialiased, (bool, np.bool_)):
+            raise ClearsplatError(f"expected true or false, got {self.antialiased!r}",
+                                  path=path, field=f"{field}.antialiased")
+        for name in ("eps2d", "radius_clip"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
+                    or not np.isfinite(v) or v < 0:
+                raise ClearsplatError(f"expected a finite number >= 0, got {v!r}",
+                                      path=path, field=f"{field}.{name}")
+        d = self.sh_degree
+        if d is not None and (isinstance(d, bool) or not isinstance(d, (int, np.integer))
+                              or not 0 <= d <= 4):
+            raise ClearsplatError(f"expected null or an integer 0 to 4, got {d!r}",
+                                  path=path, field=f"{field}.sh_degree")
+
+    def to_json(self) -> dict:
+        """The ``"render"`` object of ``cameras.json`` (only the fields that differ from the
+        defaults)."""
+        out = {}
+        for name, default in (("antialiased", False), ("eps2d", 0.3), ("radius_clip", 0.0),
+                              ("sh_degree", None)):
+            v = getattr(self, name)
+            if v != default:
+                out[name] = bool(v) if name == "antialiased" else (
+                    int(v) if name == "sh_degree" else float(v))
+        return out
+
+    @classmethod
+    def from_json(cls, obj, *, path=None) -> "RenderSettings":
+        """Settings from a ``"render"`` object (missing fields take the defaults)."""
+        if obj is None:
+            return cls()
+        if not isinstance(obj, dict):
+            raise ClearsplatError(f"expected an object, got {type(obj).__name__}", path=path,
+                                  field="render")
+        known = {"antialiased", "eps2d", "radius_clip", "sh_degree"}
+        for k in obj:
+            if k not in known:
+                raise ClearsplatError(f"unknown render setting {k!r} (known: "
+                                      f"{', '.join(sorted(known))})", path=path,
+                                      field=f"render.{k}")
+        tmp = object.__new__(cls)             # validate with the path before constructing
+        for name, default in (("antialiased", False), ("eps2d", 0.3), ("radius_clip", 0.0),
+                              ("sh_degree", None)):
+            object.__setattr__(tmp, name, obj.get(name, default))
+        tmp.validate(path=path)
+        return cls(**{k: getattr(tmp, k) for k in known})
 
 
 @dataclass(eq=False)
@@ -42,7 +132,7 @@ class Gaussians:
     opacities : (N,) float32
         Opacity in [0, 1] (not the logit stored on disk).
     sh : (N, K, 3) float32
-        Spherical-harmonic colour coefficients, K in {1, 4, 9, 16};
+        Spherical-harmonic colour coefficients, K in {1, 4, 9, 16, 25} (degree 0 to 4);
         ``sh[:, 0]`` is the DC term, colour = SH_C0 * dc + 0.5 + higher bands.
     extra : dict of str to (N,) arrays
         Further per-Gaussian properties (read from a PLY and written back).
@@ -70,7 +160,7 @@ class Gaussians:
 
     @property
     def sh_degree(self) -> int:
-        """Spherical-harmonic degree: 0 for K=1, 1 for 4, 2 for 9, 3 for 16."""
+        """Spherical-harmonic degree: 0 for K=1, 1 for 4, 2 for 9, 3 for 16, 4 for 25."""
         return int(round(np.sqrt(self.sh.shape[1]))) - 1
 
     def subset(self, index) -> "Gaussians":
@@ -89,8 +179,8 @@ class Gaussians:
                 raise ClearsplatError(f"expected shape {shape}, got {arr.shape}",
                                       path=path, field=name)
         if self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3 \
-                or self.sh.shape[1] not in (1, 4, 9, 16):
-            raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, "
+                or self.sh.shape[1] not in SH_COUNTS:
+            raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, 25, "
                                   f"got {self.sh.shape}", path=path, field="sh")
         for name in ("means", "scales", "quats", "opacities", "sh"):
             arr = getattr(self, name)
@@ -136,6 +226,9 @@ class Scene:
         The input cameras, in view-id order.
     images : list of (H, W, 3) float32 arrays, or None
         The input images, RGB in [0, 1], one per camera.
+    render_settings : RenderSettings
+        How the model that predicted the Gaussians renders them (classic 3DGS by default);
+        :func:`clearsplat.render` and the filter render the scene this way.
     """
 
     gaussians: Gaussians
@@ -143,6 +236,7 @@ class Scene:
     pixel_id: np.ndarray | None
     cameras: list
     images: list | None = None
+    render_settings: RenderSettings = field(default_factory=RenderSettings)
 
     def __post_init__(self):
         n = len(self.gaussians)
@@ -153,6 +247,8 @@ class Scene:
         self.cameras = list(self.cameras)
         if self.images is not None:
             self.images = [np.ascontiguousarray(im, dtype=np.float32) for im in self.images]
+        if self.render_settings is None:
+            self.render_settings = RenderSettings()
 
     # -- properties --------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -179,12 +275,17 @@ class Scene:
     def subset(self, index) -> "Scene":
         """A scene holding the Gaussians in ``index`` (bool mask or indices), same views."""
         return Scene(self.gaussians.subset(index), self.view_id[index], self.pixel_id[index],
-                     self.cameras, self.images)
+                     self.cameras, self.images, self.render_settings)
 
     # -- checks ------------------------------------------------------------------------------
     def validate(self, *, path=None) -> None:
         """Raise :class:`ClearsplatError` naming the field if anything is inconsistent."""
         self.gaussians.validate(path=path)
+        if not isinstance(self.render_settings, RenderSettings):
+            raise ClearsplatError(f"expected RenderSettings, got "
+                                  f"{type(self.render_settings).__name__}", path=path,
+                                  field="render")
+        self.render_settings.validate(path=path)
         n, v = len(self), self.num_views
         if self.view_id.shape != (n,):
             raise ClearsplatError(f"expected {n} values, got shape {self.view_id.shape}",
@@ -231,8 +332,20 @@ class Scene:
 
         See :func:`clearsplat.io.save_scene`.
         """
-        from .io import save_scene
-        save_scene(self, path, overwrite=overwrite)
+        if _bundle_writer is None:       # only when clearsplat.io was never imported
+            raise ClearsplatError("no bundle writer: import clearsplat.io first", field="path")
+        _bundle_writer(self, path, overwrite=overwrite)
+
+
+#: ``clearsplat.io.save_scene``, set by :mod:`clearsplat.io.bundle` when it is imported (which
+#: ``import clearsplat`` does): io sits above this module, so it is never imported from here.
+_bundle_writer = None
+
+
+def register_bundle_writer(writer) -> None:
+    """Set the function :meth:`Scene.save` calls, ``writer(scene, path, overwrite=...)``."""
+    global _bundle_writer
+    _bundle_writer = writer
 
 
 def _f32(a) -> np.ndarray:

@@ -1,5 +1,5 @@
 // Python bindings for the native core: one function per kernel. Defaults, validation and
-// conversions live in Python (clearsplat/_render.py); the checks here only guard memory.
+// conversions live in Python (clearsplat/render/_kernels.py); the checks here only guard memory.
 // Every kernel runs without the GIL.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
@@ -60,12 +60,15 @@ const uint8_t* keep_of(const In<uint8_t>& keep, int64_t n) {
 
 nb::tuple project(In<float> means, In<float> scales, In<float> quats, In<float> opacities,
                   In<float> sh, In<uint8_t> keep, In<double> view, In<double> intrinsics,
-                  In<double> campos, int width, int height, double near_plane, int num_threads) {
+                  In<double> campos, int width, int height, double near_plane, double eps2d,
+                  bool antialiased, double radius_clip, int num_threads) {
     const int64_t n = means.ndim() == 2 ? int64_t(means.shape(0)) : -1;
     require(means.ndim() == 2 && means.shape(1) == 3, "means must be (N, 3)");
     require(int64_t(scales.size()) == 3 * n && int64_t(quats.size()) == 4 * n &&
                 int64_t(opacities.size()) == n, "per-Gaussian array sizes");
     require(sh.ndim() == 3 && int64_t(sh.shape(0)) == n && sh.shape(2) == 3, "sh must be (N, K, 3)");
+    const size_t k = sh.shape(1);
+    require(k == 1 || k == 4 || k == 9 || k == 16 || k == 25, "sh must have K in 1, 4, 9, 16, 25");
     require(view.size() == 12 && intrinsics.size() == 4 && campos.size() == 3, "camera sizes");
     cs::ProjectInputs in{means.data(), scales.data(), quats.data(), opacities.data(), sh.data(),
                          int(sh.shape(1)), n, keep_of(keep, n)};
@@ -75,6 +78,7 @@ nb::tuple project(In<float> means, In<float> scales, In<float> quats, In<float> 
     p.cx = intrinsics.data()[2], p.cy = intrinsics.data()[3];
     for (int k = 0; k < 3; ++k) p.campos[k] = campos.data()[k];
     p.width = width, p.height = height, p.near_plane = near_plane;
+    p.eps2d = eps2d, p.antialiased = antialiased, p.radius_clip = radius_clip;
     cs::ProjectResult r;
     {
         nb::gil_scoped_release release;
@@ -194,7 +198,8 @@ NB_MODULE(_core, m) {
     m.def("max_threads", []() { return omp_get_max_threads(); },
           "Number of threads the native core uses by default.");
     m.def("project", &project, "means"_a, "scales"_a, "quats"_a, "opacities"_a, "sh"_a, "keep"_a,
-          "view"_a, "intrinsics"_a, "campos"_a, "width"_a, "height"_a, "near"_a, "num_threads"_a,
+          "view"_a, "intrinsics"_a, "campos"_a, "width"_a, "height"_a, "near"_a, "eps2d"_a,
+          "antialiased"_a, "radius_clip"_a, "num_threads"_a,
           "Project, cull and depth-sort: (splats (V, 12) f32, rects (V, 4) u16, index (V,) i32).");
     m.def("bin_tiles", &bin_tiles, "rects"_a, "grid_w"_a, "grid_h"_a, "num_threads"_a,
           "Tile lists: (offsets (T + 1,) i64, lists (P,) i32).");

@@ -25,6 +25,7 @@ constexpr int kBlock = 64;  // Gaussians per block
 struct Block {
     alignas(64) double u[kBlock], v[kBlock], ca[kBlock], cb[kBlock], cc[kBlock], tz[kBlock];
     alignas(64) double e2[kBlock];
+    alignas(64) double op[kBlock];  // opacity times the antialiasing compensation (AA mode only)
     alignas(64) double ok[kBlock];  // 1 visible, 0 culled
     alignas(64) int32_t x0[kBlock], x1[kBlock], y0[kBlock], y1[kBlock];      // pixel range
     alignas(64) int32_t bx0[kBlock], bx1[kBlock], by0[kBlock], by1[kBlock];  // alpha box
@@ -108,11 +109,14 @@ inline void box_radius2(const float* opacity, int cnt, double* e2) {
 }
 
 // Projects Gaussians [i0, i0 + cnt) into `b`; b.ok[j] is 0 where a Gaussian is culled (behind
-// the near plane, degenerate, off-image, never reaching alpha 1/255, or not finite).
+// the near plane, degenerate, off-image, never reaching alpha 1/255, radius at most
+// p.radius_clip, or not finite). In antialiased mode the opacity is scaled by the compensation
+// sqrt(det(Sigma2D) / det(Sigma2D + eps2d I)) before culling and bounding (as gsplat does).
 CS_TARGET_CLONES
 void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, int cnt,
                    Block& b) {
-    box_radius2(in.opacities + i0, cnt, b.e2);
+    const bool aa = p.antialiased;
+    if (!aa) box_radius2(in.opacities + i0, cnt, b.e2);  // AA: from the scaled opacity below
     const double* V = p.view;
     const double fx = p.fx, fy = p.fy, cx = p.cx, cy = p.cy;
     const d4 near_plane = dsplat(p.near_plane);
@@ -120,6 +124,7 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
     const d4 limx = dsplat(1.3 * double(p.width) / (2.0 * fx));
     const d4 limy = dsplat(1.3 * double(p.height) / (2.0 * fy));
     const d4 zero = dsplat(0.0), one = dsplat(1.0);
+    const d4 eps2d = dsplat(p.eps2d), radius_clip = dsplat(p.radius_clip);
     // Transpose the inputs to contiguous lanes first (zeros past cnt: those lanes are ignored).
     alignas(64) double in_m[3][kBlock], in_q[4][kBlock], in_s[3][kBlock], in_o[kBlock];
     for (int j = 0; j < cnt; ++j) {
@@ -133,7 +138,7 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
     for (int j = cnt; j < padded; ++j) {
         for (int k = 0; k < 3; ++k) in_m[k][j] = in_s[k][j] = 0.0;
         for (int k = 0; k < 4; ++k) in_q[k][j] = 0.0;
-        in_o[j] = b.e2[j] = 0.0;
+        in_o[j] = b.e2[j] = b.op[j] = 0.0;
     }
     for (int j = 0; j < padded; j += 4) {
         const d4 mx = dload(in_m[0] + j), my = dload(in_m[1] + j), mz = dload(in_m[2] + j);
@@ -163,7 +168,7 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
         const d4 yz = dmin(dmax(ty * iz, -limy), limy);
         const d4 j00 = fx * iz, j02 = -fx * xz * iz;
         const d4 j11 = fy * iz, j12 = -fy * yz * iz;
-        // Sigma2D = (J W M)(J W M)^T + 0.3 I, with Sigma = M M^T; A, B: rows of J W.
+        // Sigma2D = (J W M)(J W M)^T + eps2d I, with Sigma = M M^T; A, B: rows of J W.
         const d4 A0 = j00 * V[0] + j02 * V[8], A1 = j00 * V[1] + j02 * V[9];
         const d4 A2 = j00 * V[2] + j02 * V[10];
         const d4 B0 = j11 * V[4] + j12 * V[8], B1 = j11 * V[5] + j12 * V[9];
@@ -174,11 +179,21 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
         const d4 BM0 = (B0 * R00 + B1 * R10 + B2 * R20) * s0;
         const d4 BM1 = (B0 * R01 + B1 * R11 + B2 * R21) * s1;
         const d4 BM2 = (B0 * R02 + B1 * R12 + B2 * R22) * s2;
-        const d4 ca = AM0 * AM0 + AM1 * AM1 + AM2 * AM2 + 0.3;
+        const d4 ca0 = AM0 * AM0 + AM1 * AM1 + AM2 * AM2;
         const d4 cb = AM0 * BM0 + AM1 * BM1 + AM2 * BM2;
-        const d4 cc = BM0 * BM0 + BM1 * BM1 + BM2 * BM2 + 0.3;
+        const d4 cc0 = BM0 * BM0 + BM1 * BM1 + BM2 * BM2;
+        const d4 ca = ca0 + eps2d, cc = cc0 + eps2d;
         const d4 det = ca * cc - cb * cb;
         ok &= (det > 0.0) & (det < 1e300);
+        if (aa) {
+            // The blur would spread a sub-pixel Gaussian's energy; the compensation keeps it.
+            const d4 ratio = dmax(zero, (ca0 * cc0 - cb * cb) / det);
+            const d4 op = opacity * dsqrt(dsel(ok, ratio, zero));
+            ok &= op >= double(kMinAlpha);
+            dstore(b.op + j, op);
+            for (int l = 0; l < 4; ++l)  // 2 ln(255 o), as box_radius2 for the classic path
+                b.e2[j + l] = std::max(0.0, 2.0 * std::log(std::max(1.0, 255.0 * op[l])));
+        }
         const d4 mid = 0.5 * (ca + cc);
         const d4 lambda = mid + dsqrt(dmax(dsplat(0.1), mid * mid - det));
         d4 r3 = 3.0 * dsqrt(lambda);
@@ -186,6 +201,7 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
         r3 = dsel(ok, r3, zero);
         d4 radius = trunc_small(r3);  // ceil(3 sqrt(lambda))
         radius += dsel(radius < r3, one, zero);
+        ok &= radius > radius_clip;
         const d4 u = fx * tx * iz + cx, v = fy * ty * iz + cy;
 
         // Pixels (and so tiles) with a centre within the radius, per axis.
@@ -230,7 +246,7 @@ inline bool finish_one(int64_t i, int j, const Block& b, const ProjectInputs& in
     s.ca = float(b.cc[j] * idet);
     s.cb = float(-b.cb[j] * idet);
     s.cc = float(b.ca[j] * idet);
-    s.opacity = in.opacities[i];
+    s.opacity = p.antialiased ? float(b.op[j]) : in.opacities[i];
     s.depth = float(b.tz[j]);
     s.bx0 = int16_t(b.bx0[j]);
     s.bx1 = int16_t(b.bx1[j]);

@@ -49,6 +49,9 @@ struct ProjectParams {
     double campos[3];
     int width, height;
     double near_plane;
+    double eps2d = 0.3;        // added to the 2D covariance's diagonal (pixels^2)
+    bool antialiased = false;  // scale opacity by sqrt(det(Sigma2D) / det(Sigma2D + eps2d I))
+    double radius_clip = 0.0;  // cull Gaussians whose pixel radius ceil(3 sqrt(lambda)) <= this
 };
 
 struct ProjectInputs {

@@ -195,7 +195,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     own = [index.mask(i, n) for i in range(scene.num_views)]
     views, full, excl = [], [], []
     if on_gpu:  # one upload of the Gaussians, shared by the views
-        from .._gsplat import prepare_gsplat_views
+        from ..render.gsplat import prepare_gsplat_views
         gpu_views = prepare_gsplat_views(scene, scene.cameras, device=config.device)
     for i, cam in enumerate(scene.cameras):
         pv = gpu_views[i] if on_gpu else prepare(scene, cam, num_threads=threads)

@@ -5,7 +5,8 @@ Formats are described in the module docstrings of :mod:`clearsplat.io.bundle` (b
 :mod:`clearsplat.io.images`; every error they raise is listed in ``docs/errors.md``.
 """
 
-from .bundle import load_cameras, load_scene, save_cameras, save_scene, swap_into_place
+from .bundle import (load_cameras, load_render_settings, load_scene, save_cameras, save_scene,
+                     swap_into_place)
 from .colmap import read_colmap
 from .exports import EXPORT_PRESETS, read_export
 from .images import read_image, write_image
@@ -13,4 +14,4 @@ from .ply import read_ply, write_ply
 
 __all__ = ["load_scene", "save_scene", "load_cameras", "save_cameras",
            "read_ply", "write_ply", "read_image", "write_image", "read_colmap",
-           "read_export", "EXPORT_PRESETS", "swap_into_place"]
+           "read_export", "EXPORT_PRESETS", "swap_into_place", "load_render_settings"]

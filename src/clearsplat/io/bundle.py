@@ -13,7 +13,10 @@ Layout::
                  "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
                  "camera_to_world": [[...], [...], [...], [0, 0, 0, 1]]}, ...]}
 
-``camera_to_world`` is in OpenCV axes (``docs/conventions.md``). Image paths are relative to
+``camera_to_world`` is in OpenCV axes (``docs/conventions.md``). An optional top-level
+``"render"`` object holds the scene's :class:`~clearsplat.scene.RenderSettings`, for example
+``"render": {"antialiased": true, "eps2d": 0.1}`` (absent: the classic 3DGS rasterizer; fields
+in ``docs/conventions.md``, "Render settings"). Image paths are relative to
 the bundle; absolute paths, paths with ``..`` and paths that a symbolic link leads out of the
 bundle are refused (links that stay inside are followed).
 
@@ -37,7 +40,7 @@ import numpy as np
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
-from ..scene import Scene
+from ..scene import RenderSettings, Scene, register_bundle_writer
 from .images import read_image, write_image
 from .ply import RAW_PREFIX, atomic_write_bytes, read_ply, write_ply
 
@@ -308,7 +311,32 @@ def _nerfstudio_frame(doc: dict, frame: dict, path, field):
     return cam, image
 
 
-def save_cameras(path, cameras, image_paths=None, *, format: str | None = None) -> None:
+def load_render_settings(path) -> RenderSettings:
+    """The top-level ``"render"`` object of a ``cameras.json`` / ``transforms.json`` file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The JSON file.
+
+    Returns
+    -------
+    RenderSettings
+        The defaults (classic 3DGS) when the file has no ``"render"`` object.
+
+    Raises
+    ------
+    ClearsplatError
+        Naming the field (``render.eps2d``) of an unknown key or a value out of range.
+    """
+    path = Path(path)
+    doc = _read_json(path)
+    return RenderSettings.from_json(doc.get("render") if isinstance(doc, dict) else None,
+                                    path=path)
+
+
+def save_cameras(path, cameras, image_paths=None, *, format: str | None = None,
+                 render: RenderSettings | None = None) -> None:
     """Write cameras as ``cameras.json`` (or a nerfstudio ``transforms.json``), atomically.
 
     Parameters
@@ -323,6 +351,8 @@ def save_cameras(path, cameras, image_paths=None, *, format: str | None = None) 
     format : {"clearsplat", "nerfstudio"}, optional
         Default: ``"nerfstudio"`` when the file is named ``transforms.json``, else
         ``"clearsplat"``.
+    render : RenderSettings, optional
+        Written as the top-level ``"render"`` object unless it is the classic default.
 
     Raises
     ------
@@ -361,6 +391,12 @@ def save_cameras(path, cameras, image_paths=None, *, format: str | None = None) 
         frames.append(frame)
     doc = {"camera_model": "PINHOLE", "frames": frames} if format == "nerfstudio" \
         else {"frames": frames}
+    if render is not None:
+        if not isinstance(render, RenderSettings):
+            raise ClearsplatError(f"expected RenderSettings, got {type(render).__name__}",
+                                  path=path, field="render")
+        if not render.is_classic:
+            doc["render"] = render.to_json()
     atomic_write_bytes(path, (json.dumps(doc, indent=1) + "\n").encode("utf-8"))
 
 
@@ -439,7 +475,8 @@ def load_scene(path, *, require_images: bool = True) -> Scene:
             except ClearsplatError as e:
                 field = f"frames[{i}].{e.field}" if e.field in ("width", "height") else e.field
                 raise ClearsplatError(e.reason, path=e.path, field=field) from None
-    scene = Scene(gaussians, view_id, pixel_id, cameras, images)
+    settings = load_render_settings(camera_file)
+    scene = Scene(gaussians, view_id, pixel_id, cameras, images, settings)
     scene.validate(path=bundle)
     return scene
 
@@ -510,7 +547,8 @@ def save_scene(scene: Scene, path, *, overwrite: bool = False) -> None:
             names = [f"images/{i:0{digits}d}.png" for i in range(scene.num_views)]
             for name, img in zip(names, scene.images):
                 write_image(tmp / name, img)
-        save_cameras(tmp / CAMERAS_FILE, scene.cameras, names, format="clearsplat")
+        save_cameras(tmp / CAMERAS_FILE, scene.cameras, names, format="clearsplat",
+                     render=scene.render_settings)
         g = scene.gaussians
         keep_pixel = (scene.pixel_id >= 0).any() or (RAW_PREFIX + "pixel_id") in g.extra
         write_ply(tmp / GAUSSIANS_FILE, g, view_id=scene.view_id,
@@ -550,3 +588,6 @@ def swap_into_place(src, dest) -> None:
 
 def _fresh_name(dest: Path, what: str) -> Path:
     return dest.with_name(f".{dest.name}.{what}-{secrets.token_hex(6)}")
+
+
+register_bundle_writer(save_scene)

@@ -444,9 +444,10 @@ def _columns_to_gaussians(cols: dict, types: dict, comments: list, path):
     rest = sorted((int(m.group(1)), name) for name in cols
                   if (m := _REST_RE.match(name)))
     m = len(rest)
-    if [i for i, _ in rest] != list(range(m)) or m % 3 or (m // 3 + 1) not in (1, 4, 9, 16):
+    if [i for i, _ in rest] != list(range(m)) or m % 3 or (m // 3 + 1) not in (1, 4, 9, 16, 25):
         raise ClearsplatError(
-            f"expected f_rest_0..f_rest_{{M-1}} with M in 0, 9, 24, 45 (SH degree 0..3), got "
+            f"expected f_rest_0..f_rest_{{M-1}} with M in 0, 9, 24, 45, 72 (SH degree 0..4), "
+            f"got "
             f"{m} f_rest properties numbered {[i for i, _ in rest][:6]}...",
             path=path, field="f_rest_*")
     k = m // 3 + 1

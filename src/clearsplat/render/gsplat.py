@@ -5,8 +5,8 @@ Two entry points, both calling ``gsplat.rasterization`` (nerfstudio-project/gspl
 
 - :func:`render_gsplat`: one render of a scene (uploads the Gaussians every call).
 - :func:`prepare_gsplat` / :func:`prepare_gsplat_views` -> :class:`GsplatView`: the GPU
-  counterpart of :class:`clearsplat.render.PreparedView` for the filter. A scene's Gaussians are
-  uploaded once (:func:`upload_gaussians` -> :class:`DeviceGaussians`) and shared by the views of
+  counterpart of :class:`clearsplat.render.native.PreparedView` for the filter. A scene's
+  Gaussians are uploaded once (:func:`upload_gaussians` -> :class:`DeviceGaussians`) and shared by the views of
   all its cameras; every render takes a NumPy ``keep`` mask and returns NumPy arrays.
 
 The call uses the clearsplat conventions, which are also gsplat's: world-to-camera view matrices
@@ -45,12 +45,13 @@ from typing import Sequence
 
 import numpy as np
 
-from .cameras import Camera
-from .errors import ClearsplatError
-from .render import (TILE, Contributions, PreparedView, RenderResult, _check_background,
-                     _check_camera, _check_gaussians, _check_indices, _check_keep, _check_near,
-                     _gaussians, _TiledView, prepare)
-from .scene import Gaussians, Scene
+from ..cameras import Camera
+from ..errors import ClearsplatError
+from ..scene import Gaussians, Scene
+from .base import (TILE, Contributions, RenderResult, _check_background, _check_camera,
+                   _check_gaussians, _check_indices, _check_keep, _check_near, _gaussians,
+                   _TiledView)
+from .native import PreparedView, check_threads, prepare_view
 
 __all__ = ["render_gsplat", "upload_gaussians", "DeviceGaussians", "GsplatView",
            "prepare_gsplat", "prepare_gsplat_views"]
@@ -266,7 +267,7 @@ class GsplatView(_TiledView):
     """One camera rendered through gsplat: the GPU counterpart of ``PreparedView``.
 
     Made by :func:`prepare_gsplat` or :func:`prepare_gsplat_views`. Implements what
-    ``filter_distractors`` uses of :class:`clearsplat.render.PreparedView`, with the same
+    ``filter_distractors`` uses of :class:`clearsplat.render.native.PreparedView`, with the same
     signatures, shapes and dtypes (NumPy in, NumPy out): :meth:`render`, :meth:`render_pair`,
     :meth:`rerender`, :meth:`tiles_touched`, :meth:`centres_inside`, :meth:`contributions`,
     and ``camera``, ``num_gaussians``, ``num_visible``, ``grid``, ``num_tiles``, ``tile_size``.
@@ -655,7 +656,8 @@ class GsplatView(_TiledView):
 
     def _cpu_view(self) -> PreparedView:
         if self._cpu is None:
-            self._cpu = prepare(self.gaussians.gaussians, self.camera, near=self.near)
+            self._cpu = prepare_view(self.gaussians.gaussians, self.camera, None, self.near,
+                                     check_threads(None))
         return self._cpu
 
 

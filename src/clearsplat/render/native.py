@@ -1,14 +1,11 @@
-"""CPU Gaussian rasterizer: full renders, subsets, and exact incremental re-renders.
+"""The CPU backend: the native rasterizer's prepared views (subsets and exact incremental
+re-renders).
 
 The forward pass of the original 3DGS code (EWA splatting, 16x16 tiles, front-to-back alpha
 compositing); every convention is on one page, ``docs/conventions.md`` ("Rasterization").
-
-- :func:`render` / :func:`render_batch`: images, alpha and expected depth of a camera.
-- :func:`contributions`: the blending weight of every Gaussian the compositing adds at the
-  pixels of a mask (the rasterizer association).
-- :func:`prepare` -> :class:`PreparedView`: projection, binning and sorting done once, then
-  any subset rendered (``keep``) and, exactly, only the tiles a removal can change
-  (:meth:`PreparedView.rerender`, :meth:`PreparedView.rerender_tiles`).
+:func:`prepare_view` does projection, binning and sorting once; the :class:`PreparedView` it
+returns renders any subset (``keep``) and, exactly, only the tiles a removal can change
+(:meth:`PreparedView.rerender`, :meth:`PreparedView.rerender_tiles`).
 
 A subset never changes the order of the remaining Gaussians (ties in depth are broken by
 Gaussian index), so rendering with ``keep`` equals rendering the subset scene bit for bit.
@@ -16,197 +13,32 @@ Gaussian index), so rendering with ``keep`` equals rendering the subset scene bi
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from . import _render
-from .cameras import Camera
-from .errors import ClearsplatError
-from .scene import Gaussians, Scene
+from ..cameras import Camera
+from ..errors import ClearsplatError
+from ..scene import Gaussians, RenderSettings
+from . import _kernels
+from .base import (TILE, Contributions, RenderResult, TilePatch, _check_background,
+                   _check_indices, _check_keep, _TiledView, sh_to_evaluate)
 
-__all__ = ["RenderResult", "Contributions", "TilePatch", "PreparedView", "render",
-           "render_batch", "contributions", "prepare"]
-
-TILE = _render.TILE
-_MAX_SIZE = 32767  # the pixel boxes are int16
+__all__ = ["PreparedView", "prepare_view", "check_threads"]
 
 
-class RenderResult(NamedTuple):
-    """One rendered view.
-
-    Attributes
-    ----------
-    rgb : (H, W, 3) float32
-        ``sum c_i a_i T_i + T_final * background``.
-    alpha : (H, W) float32
-        ``1 - T_final``.
-    depth : (H, W) float32
-        Expected camera z, ``sum z_i a_i T_i / alpha``; 0 where alpha is 0.
-    """
-
-    rgb: np.ndarray
-    alpha: np.ndarray
-    depth: np.ndarray
-
-
-class Contributions(NamedTuple):
-    """Blending weights the compositing added, ordered by pixel, then front to back.
-
-    Attributes
-    ----------
-    pixel : (M,) int64
-        Flat pixel index ``row * W + col``.
-    gaussian : (M,) int64
-        Index of the Gaussian in the scene.
-    weight : (M,) float32
-        ``alpha * T`` of that Gaussian at that pixel.
-    """
-
-    pixel: np.ndarray
-    gaussian: np.ndarray
-    weight: np.ndarray
-
-
-class TilePatch(NamedTuple):
-    """Re-composited tiles (pixels outside the image in border tiles are 0).
-
-    Attributes
-    ----------
-    tiles : (T,) int32
-        Tile ids ``tile_row * grid[1] + tile_col``, ascending.
-    rgb : (T, 16, 16, 3) float32
-    alpha : (T, 16, 16) float32
-    depth : (T, 16, 16) float32
-    """
-
-    tiles: np.ndarray
-    rgb: np.ndarray
-    alpha: np.ndarray
-    depth: np.ndarray
-
-
-# -- input checks ----------------------------------------------------------------------------
-def _gaussians(scene) -> Gaussians:
-    if isinstance(scene, Scene):
-        return scene.gaussians
-    if isinstance(scene, Gaussians):
-        return scene
-    raise ClearsplatError(f"expected a Scene or Gaussians, got {type(scene).__name__}",
-                          field="scene")
-
-
-def _check_gaussians(g: Gaussians) -> None:
-    """Shapes only (cheap); non-finite Gaussians are culled by the rasterizer."""
-    n = len(g)
-    for name, shape in (("means", (n, 3)), ("scales", (n, 3)), ("quats", (n, 4)),
-                        ("opacities", (n,))):
-        arr = np.asarray(getattr(g, name))
-        if arr.shape != shape:
-            raise ClearsplatError(f"expected shape {shape}, got {arr.shape}", field=name)
-    sh = np.asarray(g.sh)
-    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
-        raise ClearsplatError(f"expected shape ({n}, K, 3) with K in 1, 4, 9, 16, got {sh.shape}",
-                              field="sh")
-    if n >= 2**31 - 1:
-        raise ClearsplatError(f"at most 2**31 - 2 Gaussians, got {n}", field="means")
-
-
-def _check_camera(camera, field: str = "camera") -> Camera:
-    if not isinstance(camera, Camera):
-        raise ClearsplatError(f"expected a Camera, got {type(camera).__name__}", field=field)
-    if camera.width > _MAX_SIZE or camera.height > _MAX_SIZE:
-        raise ClearsplatError(f"image size {camera.width}x{camera.height} above {_MAX_SIZE}",
-                              field=field)
-    return camera
-
-
-def _check_keep(keep, n: int, field: str = "keep") -> np.ndarray | None:
-    if keep is None:
-        return None
-    keep = np.asarray(keep)
-    if keep.dtype != np.bool_ or keep.shape != (n,):
-        raise ClearsplatError(f"expected a ({n},) bool array, got {keep.dtype} {keep.shape}",
-                              field=field)
-    return np.ascontiguousarray(keep)
-
-
-def _check_threads(num_threads) -> int:
+def check_threads(num_threads) -> int:
     if num_threads is None:
-        return _render.max_threads()
+        return _kernels.max_threads()
     if isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer)) \
             or num_threads < 1:
         raise ClearsplatError(f"expected a positive int, got {num_threads!r}", field="num_threads")
     return int(num_threads)
 
 
-def _check_near(near) -> float:
-    near = float(near)
-    if not (np.isfinite(near) and near > 0):
-        raise ClearsplatError(f"expected a positive finite near plane, got {near}", field="near")
-    return near
-
-
-def _check_background(background) -> np.ndarray:
-    bg = np.asarray(background, dtype=np.float32)
-    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-        raise ClearsplatError(f"expected 3 finite values, got {background!r}", field="background")
-    return bg
-
-
-def _check_indices(gaussians, n: int, field: str) -> np.ndarray:
-    """Gaussian indices from an int index array or an (n,) bool mask, as int64."""
-    a = np.asarray(gaussians)
-    if a.dtype == np.bool_:
-        if a.shape != (n,):
-            raise ClearsplatError(f"expected a ({n},) bool mask, got shape {a.shape}", field=field)
-        return np.flatnonzero(a)
-    if a.size == 0:
-        return np.empty(0, dtype=np.int64)
-    if not np.issubdtype(a.dtype, np.integer) or a.ndim != 1:
-        raise ClearsplatError(f"expected a 1-D int index array or bool mask, got {a.dtype} "
-                              f"{a.shape}", field=field)
-    if a.min() < 0 or a.max() >= n:
-        raise ClearsplatError(f"Gaussian index out of range 0..{n - 1}", field=field)
-    return a.astype(np.int64, copy=False)
 
 
 # -- prepared view ---------------------------------------------------------------------------
-class _TiledView:
-    """The tile grid of a view's ``camera`` and the checks against it (shared by
-    :class:`PreparedView` and the GPU views of ``clearsplat._gsplat``)."""
-
-    tile_size = TILE
-    camera: Camera
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        return (-(-self.camera.height // TILE), -(-self.camera.width // TILE))
-
-    @property
-    def num_tiles(self) -> int:
-        rows, cols = self.grid
-        return rows * cols
-
-    def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
-        t = np.asarray(tiles)
-        if t.size == 0:
-            return np.empty(0, dtype=np.int32)
-        if not np.issubdtype(t.dtype, np.integer) or t.ndim != 1:
-            raise ClearsplatError(f"expected a 1-D int array of tile ids, got {t.dtype} {t.shape}",
-                                  field=field)
-        if t.min() < 0 or t.max() >= self.num_tiles:
-            raise ClearsplatError(f"tile id out of range 0..{self.num_tiles - 1}", field=field)
-        return np.unique(t).astype(np.int32)
-
-    def _check_result(self, base, field: str = "base") -> RenderResult:
-        h, w = self.camera.height, self.camera.width
-        if not isinstance(base, RenderResult) or np.shape(base.rgb) != (h, w, 3) \
-                or np.shape(base.alpha) != (h, w) or np.shape(base.depth) != (h, w):
-            raise ClearsplatError(f"expected a RenderResult of a {w}x{h} view", field=field)
-        return base
-
-
 class PreparedView(_TiledView):
     """One camera with projection, tile binning and depth sort done (visible Gaussians only).
 
@@ -331,7 +163,7 @@ class PreparedView(_TiledView):
         h, w = self.camera.height, self.camera.width
         out = RenderResult(np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32),
                            np.empty((h, w), np.float32))
-        _render.composite(self._splats, self._offsets, self._lists, keep_v,
+        _kernels.composite(self._splats, self._offsets, self._lists, keep_v,
                           np.arange(self.num_tiles, dtype=np.int32), w, h, bg, *out,
                           self._num_threads)
         return out
@@ -378,7 +210,7 @@ class PreparedView(_TiledView):
                                 np.zeros((h, w), np.float32))
 
         a, b = outputs(), outputs()
-        _render.composite_pair(self._splats, self._offsets, self._lists, first_v, keep_v, tiles,
+        _kernels.composite_pair(self._splats, self._offsets, self._lists, first_v, keep_v, tiles,
                                w, h, bg, a, b, self._num_threads)
         return a, b
 
@@ -395,7 +227,7 @@ class PreparedView(_TiledView):
         (T,) int32 sorted unique tile ids.
         """
         ids = self._ids(gaussians, "gaussians")
-        _, tiles = _render.tiles_touched(self._rects, np.array([0, ids.size], np.int64), ids,
+        _, tiles = _kernels.tiles_touched(self._rects, np.array([0, ids.size], np.int64), ids,
                                          self.grid[1], self.grid[0], self._num_threads)
         return tiles
 
@@ -423,7 +255,7 @@ class PreparedView(_TiledView):
         tiles = self._check_tiles(tiles)
         bg = _check_background(background)
         out = RenderResult(*(np.array(a, dtype=np.float32, order="C", copy=True) for a in base))
-        _render.composite(self._splats, self._offsets, self._lists, keep_v, tiles,
+        _kernels.composite(self._splats, self._offsets, self._lists, keep_v, tiles,
                           self.camera.width, self.camera.height, bg, *out, self._num_threads)
         return out
 
@@ -465,7 +297,7 @@ class PreparedView(_TiledView):
         rem_offsets[1:] = np.cumsum([a.size for a in ids])
         rem_ids = np.concatenate(ids) if ids else np.empty(0, np.int32)
         if tiles_list is None:
-            task_offsets, task_tiles = _render.tiles_touched(
+            task_offsets, task_tiles = _kernels.tiles_touched(
                 self._rects, rem_offsets, rem_ids, self.grid[1], self.grid[0], self._num_threads)
         else:
             tiles_list = list(tiles_list)
@@ -482,7 +314,7 @@ class PreparedView(_TiledView):
                 raise ClearsplatError(f"expected a RenderResult of this view ({h}x{w})",
                                       field="base")
             base = (base.rgb, base.alpha, base.depth)
-        rgb, alpha, depth = _render.composite_patches(
+        rgb, alpha, depth = _kernels.composite_patches(
             self._splats, self._offsets, self._lists, self._rects, keep_v, rem_offsets, rem_ids,
             task_offsets, task_tiles, self.camera.width, self.camera.height, bg,
             self._num_threads, base=base)
@@ -542,147 +374,24 @@ class PreparedView(_TiledView):
         if mask.dtype != np.bool_ or mask.shape != (h, w):
             raise ClearsplatError(f"expected a ({h}, {w}) bool mask, got {mask.dtype} "
                                   f"{mask.shape}", field="mask")
-        pixel, ids, weight = _render.contributions(self._splats, self._offsets, self._lists,
+        pixel, ids, weight = _kernels.contributions(self._splats, self._offsets, self._lists,
                                                    self._keep(keep), mask, w, h,
                                                    self._num_threads)
         return Contributions(pixel, self._index[ids].astype(np.int64), weight)
 
 
-# -- public functions ------------------------------------------------------------------------
-def _prepare(g: Gaussians, camera: Camera, keep, near: float, num_threads: int) -> PreparedView:
-    splats, rects, index = _render.project(
-        g.means, g.scales, g.quats, g.opacities, g.sh, keep, camera.world_to_camera, camera.K,
-        camera.position, camera.width, camera.height, near, num_threads)
+
+
+def prepare_view(g: Gaussians, camera: Camera, keep, near: float, num_threads: int,
+                 settings: RenderSettings | None = None) -> PreparedView:
+    """A :class:`PreparedView` of checked inputs (``keep`` (N,) bool or None)."""
+    s = RenderSettings() if settings is None else settings
+    splats, rects, index = _kernels.project(
+        g.means, g.scales, g.quats, g.opacities, sh_to_evaluate(g, s), keep,
+        camera.world_to_camera, camera.K, camera.position, camera.width, camera.height, near,
+        num_threads, eps2d=s.eps2d, antialiased=s.antialiased, radius_clip=s.radius_clip)
     rows, cols = -(-camera.height // TILE), -(-camera.width // TILE)
-    offsets, lists = _render.bin_tiles(rects, cols, rows, num_threads)
+    offsets, lists = _kernels.bin_tiles(rects, cols, rows, num_threads)
     return PreparedView(camera=camera, num_gaussians=len(g), splats=splats, rects=rects,
                         index=index, offsets=offsets, lists=lists, num_threads=num_threads)
 
-
-def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | None = None
-            ) -> PreparedView:
-    """Project, bin and depth-sort a scene for one camera, for repeated (subset) renders.
-
-    Parameters
-    ----------
-    scene : Scene or Gaussians
-    camera : Camera
-    near : float
-        Gaussians with camera z below this are culled.
-    num_threads : int, optional
-        Threads for this view's kernels (all cores by default); results do not depend on it.
-
-    Returns
-    -------
-    PreparedView
-    """
-    g = _gaussians(scene)
-    _check_gaussians(g)
-    return _prepare(g, _check_camera(camera), None, _check_near(near), _check_threads(num_threads))
-
-
-def render(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0), near: float = 0.01,
-           num_threads: int | None = None, device: str = "cpu") -> RenderResult:
-    """Render a scene from a camera.
-
-    Parameters
-    ----------
-    scene : Scene or Gaussians
-    camera : Camera
-    keep : (N,) bool, optional
-        Render only these Gaussians (no copy of the scene); equal to rendering the subset.
-    background : 3 floats
-        Colour behind the Gaussians, RGB.
-    near : float
-        Near plane: Gaussians with camera z below it are culled.
-    num_threads : int, optional
-        Threads (all cores by default); results do not depend on it.
-    device : str
-        ``"cpu"`` (the native rasterizer) or a CUDA device such as ``"cuda"``, rendered through
-        ``gsplat.rasterization`` (needs PyTorch with CUDA and gsplat; see
-        :func:`clearsplat._gsplat.render_gsplat` for the small differences).
-
-    Returns
-    -------
-    RenderResult
-        ``rgb`` (H, W, 3), ``alpha`` (H, W), ``depth`` (H, W), float32.
-
-    Examples
-    --------
-    >>> out = render(scene, scene.cameras[0])  # doctest: +SKIP
-    >>> out.rgb.shape  # doctest: +SKIP
-    (H, W, 3)
-    """
-    if str(device) != "cpu":
-        if not str(device).startswith("cuda"):
-            raise ClearsplatError(f"unknown device {device!r}; expected 'cpu' or 'cuda[:N]'",
-                                  field="device")
-        from ._gsplat import render_gsplat
-        return render_gsplat(scene, camera, keep=keep, background=background, near=near,
-                             device=device)
-    g = _gaussians(scene)
-    _check_gaussians(g)
-    camera = _check_camera(camera)
-    keep = _check_keep(keep, len(g))
-    bg = _check_background(background)
-    view = _prepare(g, camera, keep, _check_near(near), _check_threads(num_threads))
-    return view.render(background=bg)
-
-
-def render_batch(scene, cameras: Sequence[Camera], keeps: Sequence | None = None, *,
-                 background=(0.0, 0.0, 0.0), near: float = 0.01,
-                 num_threads: int | None = None) -> list[RenderResult]:
-    """Render many (camera, keep) pairs; equal to calling :func:`render` for each.
-
-    Parameters
-    ----------
-    scene : Scene or Gaussians
-    cameras : sequence of Camera
-    keeps : sequence of ((N,) bool or None), optional
-        One per camera.
-    background, near, num_threads
-        As in :func:`render`.
-
-    Returns
-    -------
-    list of RenderResult, one per camera.
-    """
-    g = _gaussians(scene)
-    _check_gaussians(g)
-    cameras = [_check_camera(c, f"cameras[{i}]") for i, c in enumerate(cameras)]
-    if keeps is None:
-        keeps = [None] * len(cameras)
-    keeps = list(keeps)
-    if len(keeps) != len(cameras):
-        raise ClearsplatError(f"{len(keeps)} keep masks for {len(cameras)} cameras", field="keeps")
-    keeps = [_check_keep(k, len(g), f"keeps[{i}]") for i, k in enumerate(keeps)]
-    bg = _check_background(background)
-    near, threads = _check_near(near), _check_threads(num_threads)
-    return [_prepare(g, c, k, near, threads).render(background=bg) for c, k in zip(cameras, keeps)]
-
-
-def contributions(scene, camera: Camera, mask, *, keep=None, near: float = 0.01,
-                  num_threads: int | None = None) -> Contributions:
-    """Every ``(pixel, gaussian, alpha * T)`` the compositing adds at the pixels of ``mask``.
-
-    Parameters
-    ----------
-    scene : Scene or Gaussians
-    camera : Camera
-    mask : (H, W) bool
-    keep : (N,) bool, optional
-    near : float
-    num_threads : int, optional
-
-    Returns
-    -------
-    Contributions
-        ``pixel`` (M,) int64, ``gaussian`` (M,) int64, ``weight`` (M,) float32, ordered by
-        pixel, then front to back.
-    """
-    g = _gaussians(scene)
-    _check_gaussians(g)
-    camera = _check_camera(camera)
-    keep = _check_keep(keep, len(g))
-    view = _prepare(g, camera, keep, _check_near(near), _check_threads(num_threads))
-    return view.contributions(mask)

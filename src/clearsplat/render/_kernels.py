@@ -2,7 +2,8 @@
 
 One function per kernel: each makes its inputs contiguous with the dtype the kernel takes,
 checks shapes, and calls the kernel (which releases the GIL). Defaults and the validation of
-user input live in :mod:`clearsplat.render`; these functions assume that has happened.
+user input live in :mod:`clearsplat.render.base` and the backends; these functions assume
+that has happened.
 
 The packed per-Gaussian record (``splats``, (V, 12) float32) is, per row: ``u, v`` (projected
 centre), ``conic_a, conic_b, conic_c`` (inverse 2D covariance), ``opacity``, ``r, g, b``,
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _core
+from .. import _core
 
 __all__ = ["TILE", "project", "bin_tiles", "tiles_touched", "composite", "composite_patches",
            "contributions", "max_threads"]
@@ -43,12 +44,15 @@ def _mask(keep) -> np.ndarray:
 
 def _expect(a: np.ndarray, shape: tuple, name: str) -> None:
     if a.shape != shape:
-        raise ValueError(f"clearsplat._render: {name} has shape {a.shape}, expected {shape}")
+        raise ValueError(f"clearsplat.render._kernels: {name} has shape {a.shape}, "
+                         f"expected {shape}")
 
 
 def project(means, scales, quats, opacities, sh, keep, world_to_camera, K, position,
-            width: int, height: int, near: float, num_threads: int):
-    """Project, cull and sort front to back.
+            width: int, height: int, near: float, num_threads: int, *, eps2d: float = 0.3,
+            antialiased: bool = False, radius_clip: float = 0.0):
+    """Project, cull and sort front to back (``eps2d``, ``antialiased``, ``radius_clip`` as in
+    :class:`clearsplat.scene.RenderSettings`).
 
     Returns
     -------
@@ -75,7 +79,7 @@ def project(means, scales, quats, opacities, sh, keep, world_to_camera, K, posit
     intrinsics = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dtype=np.float64)
     return _core.project(means, scales, quats, opacities, sh, keep, view, intrinsics,
                          _c(position, np.float64), int(width), int(height), float(near),
-                         int(num_threads))
+                         float(eps2d), bool(antialiased), float(radius_clip), int(num_threads))
 
 
 def bin_tiles(rects, grid_w: int, grid_h: int, num_threads: int):
@@ -97,7 +101,8 @@ def composite(splats, offsets, lists, keep, tiles, width: int, height: int, back
     """Composite ``tiles`` into the float32 outputs (H, W, 3), (H, W), (H, W) in place."""
     for a, shape in ((rgb, (height, width, 3)), (alpha, (height, width)), (depth, (height, width))):
         if a.dtype != np.float32 or not a.flags.c_contiguous or a.shape != shape:
-            raise ValueError(f"clearsplat._render: outputs must be C-contiguous float32 {shape}")
+            raise ValueError(f"clearsplat.render._kernels: outputs must be C-contiguous "
+                             f"float32 {shape}")
     _core.composite(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
                     _mask(keep), _c(tiles, np.int32), int(width), int(height),
                     _c(background, np.float32), rgb, alpha, depth, int(num_threads))
@@ -111,7 +116,8 @@ def composite_pair(splats, offsets, lists, keep_a, keep, tiles, width: int, heig
     for outs in (outputs_a, outputs_b):
         for a, shape in zip(outs, ((height, width, 3), (height, width), (height, width))):
             if a.dtype != np.float32 or not a.flags.c_contiguous or a.shape != shape:
-                raise ValueError(f"clearsplat._render: outputs must be C-contiguous float32 {shape}")
+                raise ValueError(f"clearsplat.render._kernels: outputs must be C-contiguous "
+                             f"float32 {shape}")
     _core.composite_pair(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
                          _mask(keep_a), _mask(keep), _c(tiles, np.int32), int(width),
                          int(height), _c(background, np.float32), *outputs_a, *outputs_b,
