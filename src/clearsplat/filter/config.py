@@ -91,6 +91,10 @@ class FilterConfig:
         images (slow reference path).
     num_threads : int or None
         Threads of the native rasterizer (None: all cores).
+    view_memory : float or None
+        GB the prepared input views may hold at once on the CPU (about 60 bytes per Gaussian
+        each camera sees); views beyond it are prepared again when read, which costs time but
+        never changes the output. None: no limit.
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -119,6 +123,7 @@ class FilterConfig:
     association_min_weight: float = 0.05
     incremental: bool = True
     num_threads: int | None = None
+    view_memory: float | None = 2.0
     device: str = "cpu"
 
     def __post_init__(self):
@@ -145,6 +150,12 @@ class FilterConfig:
         if self.verify_holes not in ("auto", "skip", "count"):
             raise ClearsplatError(f"unknown value {self.verify_holes!r}; expected 'auto', "
                                   "'skip' or 'count'", field="verify_holes")
+        if self.view_memory is not None and not (
+                isinstance(self.view_memory, (int, float)) and not isinstance(self.view_memory, bool)
+                and self.view_memory > 0
+                and self.view_memory < float("inf")):
+            raise ClearsplatError(f"expected a positive number of GB or None, got "
+                                  f"{self.view_memory!r}", field="view_memory")
         if self.num_verify_views < 1:
             raise ClearsplatError("must be at least 1", field="num_verify_views")
         if self.dilation < 0:
