@@ -104,8 +104,8 @@ class FilterResult:
     stats : dict
         ``views_prepared``: camera preparations made (the number of views, plus those prepared
         again under ``config.view_memory``); ``views_peak_bytes``: most bytes the prepared
-        views held at once; ``views_skipped``: (view, pass) pairs left out because the view
-        sees none of the Gaussians tested there (CPU only).
+        views held at once; ``views_skipped``: (view, removal) pairs left out because the view
+        sees none of the removal's Gaussians (CPU only).
     """
 
     keep: np.ndarray
@@ -403,9 +403,10 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_coun
         c.verify_views = views_of[c.view]
     # Batch per verifying view: every candidate that view j verifies, in one native call.
     for j in range(scene.num_views):
-        todo = [c for c in candidates if j in c.verify_views and c.gaussians.size]
-        if not todo or not any(_sees(verifier.views, j, c.gaussians, verifier.incremental)
-                               for c in todo):
+        # Candidates that view j does not see score 0 there: left out (and the view with them).
+        todo = [c for c in candidates if j in c.verify_views and c.gaussians.size
+                and _sees(verifier.views, j, c.gaussians, verifier.incremental)]
+        if not todo:
             report("individual", j + 1, scene.num_views)
             continue
         if config.verify_base == "full":
@@ -435,12 +436,13 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
     view j's exclusion mask M_j^1 | M_j^2 (and its unreliable pixels)."""
     totals = {c.index: Partial() for c in second}
     for j in range(scene.num_views):
-        if not any(_sees(verifier.views, j, c.expanded, verifier.incremental)
-                   for c in second):
-            report("additional", j + 1, scene.num_views)   # every term would be 0
+        # Candidates that view j does not see score 0 there: left out (and the view with them).
+        todo = [c for c in second if _sees(verifier.views, j, c.expanded, verifier.incremental)]
+        if not todo:
+            report("additional", j + 1, scene.num_views)
             continue
-        parts = verifier.score_view(j, ~own[j], excl[j], [c.expanded for c in second], q[j])
-        for c, p in zip(second, parts):
+        parts = verifier.score_view(j, ~own[j], excl[j], [c.expanded for c in todo], q[j])
+        for c, p in zip(todo, parts):
             totals[c.index].add(p)
         report("additional", j + 1, scene.num_views)
     survivors = []

@@ -44,7 +44,8 @@ class PreparedViews:
     peak_bytes : int
         Most bytes held at once by kept views.
     skipped : int
-        Visits the filter left out because the view sees none of the Gaussians concerned.
+        (view, removal) pairs the filter left out because the view sees none of the removal's
+        Gaussians.
     """
 
     def __init__(self, num_gaussians: int, cameras, make: Callable, *, budget: int | None):
