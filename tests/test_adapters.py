@@ -465,3 +465,37 @@ def test_read_export_colour_options_and_to_world(tmp_path):
     with pytest.raises(ClearsplatError) as e:
         read_export(path, to_world=np.diag([1.0, 2.0, 1.0, 1.0]))
     assert e.value.field == "to_world"
+
+
+# ------------------------------------------------------------------------------------------------
+# SH degree 4 and the backbones' render settings
+# ------------------------------------------------------------------------------------------------
+def test_rotate_sh_degree_4_preserves_the_colour_function():
+    rng = np.random.default_rng(4)
+    sh = rng.normal(size=(6, 25, 3))
+    rot = Rotation.random(random_state=4).as_matrix()
+    dirs = rng.normal(size=(50, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    assert np.allclose(_sh_colour(rotate_sh(sh, rot), dirs @ rot.T), _sh_colour(sh, dirs),
+                       atol=5e-5)
+
+
+def test_backbones_keep_the_bands_and_settings_of_their_renderer():
+    from clearsplat import RenderSettings
+    # AnySplat and ReSplat render with gsplat (band 4 evaluated); pixelSplat-style models and
+    # NoPoSplat with the original 3DGS rasterizer (bands up to 3).
+    g, ext, intr = _anysplat_inputs(2 * H * W)
+    rng = np.random.default_rng(0)
+    g["harmonics"] = rng.normal(size=(1, 2 * H * W, 3, 25))
+    any_scene = from_anysplat(g, ext, intr, height=H, width=W)
+    assert any_scene.gaussians.sh.shape[1] == 25
+    assert any_scene.render_settings == RenderSettings(radius_clip=0.1)
+    np.testing.assert_allclose(any_scene.gaussians.sh[:, 24], g["harmonics"][0, :, :, 24],
+                               rtol=1e-6)
+    res = from_resplat(g, ext, intr, height=H, width=W)
+    assert res.gaussians.sh.shape[1] == 25
+    assert res.render_settings == RenderSettings(antialiased=True, eps2d=0.1)
+    dep = from_depthsplat(g, ext, intr, height=H, width=W)
+    assert dep.gaussians.sh.shape[1] == 16 and dep.render_settings.is_classic
+    assert from_depthsplat(g, ext, intr, height=H, width=W,
+                           max_sh_degree=4).gaussians.sh.shape[1] == 25

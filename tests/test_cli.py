@@ -285,6 +285,14 @@ def test_usage_errors_are_one_line(capsys):
     (["--set", "eta=nan"], ("--set", "non-finite")),
     (["--set", "no_such_option=1"], ("no_such_option", "unknown option")),
     (["--preset", "nope"], ("preset", "unknown preset")),
+    (["--set", "eta=abc"], ("eta: got 'abc'", "a number in [0, 1]")),
+    (["--set", "dilation=abc"], ("dilation: got 'abc'", "an integer >= 0")),
+    (["--set", "num_verify_views=x"], ("num_verify_views: got 'x'", "an integer >= 1")),
+    (["--set", "verify=maybe"], ("verify: got 'maybe'", "true or false")),
+    (["--set", "eta=2"], ("eta: got 2", "a number in [0, 1]")),
+    (["--set", "epsilon=-1"], ("epsilon: got -1", "a number in [0, 3]")),
+    (["--set", "refine=sideways"], ("refine: got 'sideways'", "'static-depth', 'depth', 'none'")),
+    (["--features", "dinov9"], ("features: got 'dinov9'", "'dinov2', 'dinov3'")),
 ])
 def test_bad_options(bundle, tmp_path, capsys, argv, fragments):
     code, _, err = _filter(bundle, tmp_path / "out", capsys, *argv)

@@ -219,11 +219,53 @@ def test_report_pictures_and_page(scene, result, tmp_path):
     with open(page) as f:
         html = f.read()
     for i in range(scene.num_views):
-        for name in ("input", "exclusion", "similarity", "proposals", "accepted"):
+        for name in ("input", "before", "after", "exclusion", "similarity", "proposals",
+                     "removed"):
             assert f"view{i:03d}_{name}.png" in html
             assert (tmp_path / f"view{i:03d}_{name}.png").exists()
     # The exclusion picture is R_i^-i: the view rendered without its own Gaussians.
     excl = np.asarray(Image.open(tmp_path / "view001_exclusion.png"))
     expected = render(scene, scene.cameras[1], keep=scene.view_id != 1).rgb
     assert np.array_equal(excl, to_uint8(expected))
-    assert f"{int(result.removed.sum())} of {len(scene)} Gaussians removed" in html
+    assert f"{int(result.removed.sum()):,} of {len(scene):,} Gaussians removed" in html
+
+
+def test_report_shows_what_is_removed(scene, result, tmp_path):
+    """The verdict picture paints exactly the pixels of the removed Gaussians, the page names
+    input and config, gives the scores' units and repeats the legend under every view."""
+    from PIL import Image
+    from clearsplat.report import CAPTIONS, removed_pixels, to_uint8, write_report
+    page = write_report(str(tmp_path), scene, result, source="scene-folder")
+    with open(page) as f:
+        html = f.read()
+    assert "Input: scene-folder" in html and "Configuration: preset 'default'" in html
+    assert "L1 RGB error" in html and "between -3 and 3" in html
+    for caption in CAPTIONS.values():
+        assert html.count(f"<figcaption>{caption}</figcaption>") == scene.num_views
+    assert result.removed.any()
+    for i in range(scene.num_views):
+        own = (scene.view_id == i) & result.removed
+        expected = np.zeros(scene.cameras[i].height * scene.cameras[i].width, bool)
+        expected[scene.pixel_id[own]] = True
+        mask = removed_pixels(scene, result.removed, i)
+        assert np.array_equal(mask.ravel(), expected)
+        # Painted red where removed (the tint moves red up), untouched elsewhere but outlines.
+        pic = np.asarray(Image.open(tmp_path / f"view{i:03d}_removed.png")).astype(int)
+        img = to_uint8(scene.images[i]).astype(int)
+        changed = (pic != img).any(-1)
+        assert changed[mask].all()
+        assert f"{int(own.sum()):,} of its" in html
+        # The render after filtering is the scene rendered without the removed Gaussians.
+        after = np.asarray(Image.open(tmp_path / f"view{i:03d}_after.png"))
+        assert np.array_equal(after, to_uint8(render(scene, scene.cameras[i],
+                                                     keep=result.keep).rgb))
+
+
+def test_report_names_a_changed_config(scene, result, tmp_path):
+    import dataclasses
+    from clearsplat.report import write_report
+    changed = dataclasses.replace(result, config=result.config.replace(eta=0.4, dilation=3))
+    with open(write_report(str(tmp_path), scene, changed)) as f:
+        html = f.read()
+    assert "preset 'default' with eta=0.4, dilation=3" in html
+    assert "Input: an in-memory scene" in html

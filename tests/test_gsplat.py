@@ -111,16 +111,22 @@ def test_render_device_routes_to_gsplat_or_says_what_is_missing():
 
 
 # -- GsplatView on the CPU through a fake gsplat ----------------------------------------------
-# ``rasterization`` emulated with clearsplat's own CPU rasterizer, in gsplat 1.5.3's layout:
+# ``rasterization`` emulated with clearsplat's own CPU rasterizer (with the render settings the
+# call passes), in the batch layout of one gsplat version: "batched" (1.5.3), "shared_sh" (the
+# development version: SH [N, K, 3] only) or None (1.4-1.5.2: no batch dimensions), with
+# gsplat's AssertionError for what that version refuses. Outputs in gsplat 1.5.3's layout:
 # colours [..., C, H, W, 4] (RGB composited over ``backgrounds``, then the accumulated depth
 # sum z_i a_i T_i), alphas [..., C, H, W, 1], meta with means2d [..., C, N, 2], radii
 # [..., C, N, 2] int32 (0 where culled) and depths [..., C, N]. It checks the arguments the
 # GPU path relies on and takes its cameras from a registry keyed by the float32 view matrix and
 # intrinsics it must receive, so a camera-to-world matrix (or a transposed one) finds nothing.
 class FakeGsplat:
-    def __init__(self):
+    def __init__(self, layout="batched", settings=None):
+        from clearsplat import RenderSettings
         self.cameras = {}
-        self.calls = []          # batch shape of each call
+        self.calls = []          # batch shape of each call (but the batch-layout probe)
+        self.layout = layout
+        self.settings = RenderSettings() if settings is None else settings   # expected
 
     @staticmethod
     def _key(viewmat, K, width, height):
@@ -135,16 +141,40 @@ class FakeGsplat:
                       height, near_plane, sh_degree, packed, tile_size, eps2d, radius_clip,
                       backgrounds, render_mode, rasterize_mode):
         import torch
-        assert (packed, tile_size, eps2d, radius_clip) == (False, 16, 0.3, 0.0)
-        assert (render_mode, rasterize_mode) == ("RGB+D", "classic")
+        from clearsplat import RenderSettings
         batch = tuple(means.shape[:-2])
         n, c = means.shape[-2], viewmats.shape[-3]
-        assert (sh_degree + 1) ** 2 == colors.shape[-2]
+        probe = means.shape[-2:] == (1, 3) and width == 16 and height == 16 and batch == (2,)
+        if probe:
+            # The batch-layout probe (one Gaussian, two renders of a 16x16 view); not counted.
+            self.cameras.setdefault(self._key(viewmats[0, 0], Ks[0, 0], 16, 16), Camera(
+                K=Ks[0, 0].numpy(), camera_to_world=np.linalg.inv(viewmats[0, 0].numpy()),
+                width=16, height=16))
+        else:
+            assert (packed, tile_size, render_mode) == (False, 16, "RGB+D")
+            s = self.settings
+            assert (eps2d, radius_clip) == (s.eps2d, s.radius_clip)
+            assert rasterize_mode == ("antialiased" if s.antialiased else "classic")
+            k = colors.shape[-2]
+            assert sh_degree == min(int(np.sqrt(k)) - 1, 4 if s.sh_degree is None else s.sh_degree)
+        # What each gsplat version accepts (its shape assertions).
+        if self.layout is None:
+            assert means.shape == (n, 3) and viewmats.shape == (c, 4, 4)
+        if self.layout == "shared_sh":
+            assert colors.dim() == 3 and colors.shape[0] == n, colors.shape
+        if self.layout == "batched":
+            assert colors.shape[:-2] == batch + (n,), colors.shape
+        assert (sh_degree + 1) ** 2 <= colors.shape[-2]
         assert opacities.shape == batch + (n,) and viewmats.shape == batch + (c, 4, 4)
         assert backgrounds.shape == batch + (c, 3)
-        self.calls.append(batch)
+        if not probe:
+            self.calls.append(batch)
+        if colors.dim() == 3:
+            colors = colors.expand(batch + tuple(colors.shape))
         flat = [t.reshape((-1,) + tuple(t.shape[len(batch):])).numpy()
                 for t in (means, quats, scales, opacities, colors, viewmats, Ks, backgrounds)]
+        settings = RenderSettings(antialiased=rasterize_mode == "antialiased", eps2d=eps2d,
+                                  radius_clip=radius_clip, sh_degree=sh_degree)
         b = flat[0].shape[0]
         out_c = np.zeros((b, c, height, width, 4), np.float32)
         out_a = np.zeros((b, c, height, width, 1), np.float32)
@@ -156,7 +186,7 @@ class FakeGsplat:
                           opacities=flat[3][i], sh=flat[4][i])
             for j in range(c):
                 cam = self.cameras[self._key(flat[5][i, j], flat[6][i, j], width, height)]
-                pv = prepare(g, cam, near=near_plane)
+                pv = prepare(g, cam, near=near_plane, settings=settings)
                 r = pv.render(background=flat[7][i, j])
                 out_c[i, j, ..., :3] = r.rgb
                 out_c[i, j, ..., 3] = r.depth * r.alpha
@@ -177,14 +207,17 @@ class FakeGsplat:
                 torch.from_numpy(out_a.reshape(shape + (height, width, 1))), meta)
 
 
-@pytest.fixture
-def fake_gsplat(monkeypatch):
-    pytest.importorskip("torch")
-    fake = FakeGsplat()
+def _install(monkeypatch, fake):
     module = types.ModuleType("gsplat")
     module.rasterization = fake.rasterization
     monkeypatch.setitem(sys.modules, "gsplat", module)
     return fake
+
+
+@pytest.fixture
+def fake_gsplat(monkeypatch):
+    pytest.importorskip("torch")
+    return _install(monkeypatch, FakeGsplat())
 
 
 def _world(seed=0, n=500, sh_degree=2):
@@ -561,3 +594,240 @@ def test_filter_on_gpu(gpu_views):
     both = (cpu.removed & gpu.removed).sum()
     either = (cpu.removed | gpu.removed).sum()
     assert cpu.removed.sum() > 0 and both / either >= 0.9
+
+
+@pytest.mark.parametrize("layout", [None, "shared_sh", "batched"])
+@pytest.mark.parametrize("settings", [None, "aa"])
+def test_every_batch_layout_and_the_scene_settings_reach_gsplat(monkeypatch, layout, settings):
+    # gsplat 1.4-1.5.2 (no batch dims), the development version (SH shared) and 1.5.3: the
+    # view finds what the installed gsplat takes, renders the scene's settings, equals the CPU.
+    pytest.importorskip("torch")
+    from clearsplat import RenderSettings, Scene
+    from clearsplat.render import _gsplat_call
+    from clearsplat.render.gsplat import prepare_gsplat_views
+    s = RenderSettings(antialiased=True, eps2d=0.1, radius_clip=0.1) if settings else None
+    fake = _install(monkeypatch, FakeGsplat(layout, s))
+    g, cams = _world(3, n=300, sh_degree=4 if settings else 2)
+    g.scales[::2] *= 0.05
+    fake.add(*cams)
+    scene = Scene(g, np.zeros(len(g), np.int32), None, cams,
+                  render_settings=s or RenderSettings())
+    views = prepare_gsplat_views(scene, cams, device="cpu")
+    rng = np.random.default_rng(2)
+    keeps = [None, rng.uniform(size=len(g)) > 0.3, rng.uniform(size=len(g)) > 0.6]
+    for gv, cam in zip(views, cams):
+        pv = prepare(scene, cam)
+        fake.calls.clear()
+        many = gv.render_many(keeps)
+        assert fake.calls == ([()] * 3 if layout is None else [(3,)])
+        for keep, r in zip(keeps, many):
+            _assert_same(r, pv.render(keep=keep))
+        for x, y in zip(gv.render_pair(keep=keeps[1]), pv.render_pair(keep=keeps[1])):
+            _assert_same(x, y)
+        region = np.ones((cam.height, cam.width), bool)
+        np.testing.assert_array_equal(gv.contributions(region).weight,
+                                      pv.contributions(region).weight)
+    assert _gsplat_call._layouts[fake.rasterization] == layout
+    if settings:
+        classic = prepare(g, cams[0]).render()
+        assert np.abs(classic.rgb - views[0].render().rgb).max() > 1e-2
+
+
+# -- real gsplat versions, on the CPU ---------------------------------------------------------
+# gsplat's CUDA kernels cannot run here, but its Python entry point (``rasterization``, with the
+# shape assertions that differ between versions) and its pure-PyTorch reference
+# (``gsplat.cuda._torch_impl``) can. Point CLEARSPLAT_GSPLAT_TREES at unpacked gsplat wheels or
+# source trees (folders holding ``gsplat/``, separated by os.pathsep), for example:
+#   pip download --no-deps gsplat==1.5.2 -d w && python -m zipfile -e w/gsplat-*.whl t152
+# gsplat's compiled backend is replaced by "not built" (``_C = None``), a state gsplat handles.
+def _gsplat_trees():
+    import os
+    trees = [p for p in os.environ.get("CLEARSPLAT_GSPLAT_TREES", "").split(os.pathsep) if p]
+    return trees or [pytest.param(None, marks=pytest.mark.skip(
+        reason="set CLEARSPLAT_GSPLAT_TREES to unpacked gsplat wheels"))]
+
+
+class _Reached(Exception):
+    """Raised by a stubbed gsplat kernel: the call got past every shape check before it."""
+
+
+@pytest.fixture
+def gsplat_tree(request, monkeypatch):
+    import importlib
+    pytest.importorskip("torch")
+    path = request.param
+
+    def purge():
+        for name in [n for n in sys.modules if n == "gsplat" or n.startswith("gsplat.")]:
+            del sys.modules[name]
+
+    for name in [n for n in sys.modules if n == "gsplat" or n.startswith("gsplat.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.syspath_prepend(path)
+    importlib.invalidate_caches()
+    backend = types.ModuleType("gsplat.cuda._backend")
+    backend._C = None
+    sys.modules["gsplat.cuda._backend"] = backend
+    try:
+        import gsplat
+        import gsplat.cuda._torch_impl  # noqa: F401
+        import gsplat.rendering  # noqa: F401
+        assert gsplat.__file__.startswith(str(path)), gsplat.__file__
+        yield gsplat
+    finally:
+        purge()
+
+
+def _version(gsplat):
+    return tuple(int(x) for x in gsplat.__version__.split("+")[0].split(".")[:3])
+
+
+def _expected_layout(version):
+    if version >= (1, 6, 0):
+        return "shared_sh"
+    return "batched" if version >= (1, 5, 3) else None
+
+
+def _stub_kernels(gsplat, monkeypatch):
+    """Record what ``rasterization`` hands its first kernels, then stop with _Reached."""
+    import torch
+    R, T = gsplat.rendering, gsplat.cuda._torch_impl
+    seen = {}
+    if hasattr(R, "fully_fused_projection") and _version(gsplat) < (1, 6, 0):
+        import inspect
+        sig = inspect.signature(R.fully_fused_projection)
+
+        def project(*args, **kwargs):
+            a = sig.bind(*args, **kwargs).arguments
+            seen["project"] = a
+            covars = a.get("covars")
+            if covars is None:
+                covars, _ = T._quat_scale_to_covar_preci(a["quats"], a["scales"], True, False)
+            return T._fully_fused_projection(
+                a["means"], covars, a["viewmats"], a["Ks"], a["width"], a["height"],
+                eps2d=a["eps2d"], near_plane=a["near_plane"], far_plane=a["far_plane"],
+                calc_compensations=a["calc_compensations"])
+
+        def sh(degree, dirs, coeffs, **kwargs):
+            seen["sh"] = (degree, tuple(dirs.shape), tuple(coeffs.shape))
+            raise _Reached("spherical_harmonics")
+
+        monkeypatch.setattr(R, "fully_fused_projection", project)
+        monkeypatch.setattr(R, "spherical_harmonics", sh)
+    else:
+        # The development version: one fused C++ op. Its SH check (csrc/Rendering.cpp: "SH
+        # colors must have shape [N, K, D]") is repeated here, as the RuntimeError it raises.
+        import gsplat.cuda._wrapper as W
+
+        def fused(name):
+            def call(*args):
+                seen["fused"] = args
+                colors, sh_degree = args[5], args[25]
+                if sh_degree >= 0 and colors.dim() != 3:
+                    raise RuntimeError(f"SH colors must have shape [N, K, D], got "
+                                       f"{list(colors.shape)}")
+                raise _Reached(name)
+            return call
+
+        monkeypatch.setattr(R, "_make_lazy_cuda_func", fused)
+        monkeypatch.setattr(R, "_make_lazy_cuda_obj", lambda name: name)
+        monkeypatch.setattr(W, "_make_lazy_cuda_obj", lambda name: name)
+        for name in ("FThetaCameraDistortionParameters", "UnscentedTransformParameters"):
+            if hasattr(R, name):
+                monkeypatch.setattr(R, name, lambda *a, **k: None)
+    return seen
+
+
+@pytest.mark.parametrize("gsplat_tree", _gsplat_trees(), indirect=True)
+def test_call_shapes_against_real_gsplat_versions(gsplat_tree, monkeypatch):
+    import torch
+    from clearsplat import RenderSettings, Scene
+    from clearsplat.render import _gsplat_call
+    from clearsplat.render.gsplat import prepare_gsplat
+    gs = gsplat_tree
+    seen = _stub_kernels(gs, monkeypatch)
+    expected = _expected_layout(_version(gs))
+    # The probe: which batch layouts this version's rasterization takes.
+    for layout in _gsplat_call.LAYOUTS:
+        try:
+            ok = _gsplat_call.accepts(torch, gs.rasterization, layout, "cpu")
+        except _Reached:
+            ok = True
+        assert ok == (layout == expected), (gs.__version__, layout)
+    # A view's renders in the layout the probe finds, with antialiased degree-4 settings.
+    monkeypatch.setitem(_gsplat_call._layouts, gs.rasterization, expected)
+    settings = RenderSettings(antialiased=True, eps2d=0.1, radius_clip=0.1)
+    g, cams = _world(4, n=50, sh_degree=4)
+    scene = Scene(g, np.zeros(50, np.int32), None, cams, render_settings=settings)
+    view = prepare_gsplat(scene, cams[0], device="cpu")
+    keeps = [np.ones(50, bool), np.arange(50) % 2 == 0, np.arange(50) % 3 == 0]
+    for batch in (keeps[:1], keeps):
+        seen.clear()
+        with pytest.raises(_Reached):
+            view.render_many(batch, batch_size=len(batch))
+        b = () if len(batch) == 1 or expected is None else (len(batch),)
+        if "project" in seen:
+            p = seen["project"]
+            assert tuple(p["means"].shape) == b + (50, 3)
+            assert (p["eps2d"], p["radius_clip"], p["calc_compensations"]) == (0.1, 0.1, True)
+            assert p["width"] == cams[0].width and p["height"] == cams[0].height
+            degree, dirs, coeffs = seen["sh"]
+            assert degree == 4 and coeffs[-2:] == (25, 3) and dirs[:len(b)] == b
+        else:
+            args = seen["fused"]
+            assert tuple(args[0].shape) == b + (50, 3) and tuple(args[5].shape) == (50, 25, 3)
+            assert (args[11], args[14], args[19], args[25]) == (0.1, 0.1, True, 4)
+
+
+@pytest.mark.parametrize("gsplat_tree", _gsplat_trees(), indirect=True)
+def test_reference_rasterizer_against_gsplat_pure_pytorch(gsplat_tree):
+    # The test reference's SH (degrees 0-4) and antialiased projection against gsplat's own
+    # pure-PyTorch twins of its kernels.
+    import reference_rasterizer as ref
+    import torch
+    from clearsplat import RenderSettings
+    T = gsplat_tree.cuda._torch_impl
+    rng = np.random.default_rng(8)
+    d = rng.normal(size=(400, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for degree in range(5):
+        k = (degree + 1) ** 2
+        coeffs = rng.normal(size=(400, k, 3))
+        want = np.einsum("nk,nkc->nc", ref.sh_basis(d, k), coeffs)
+        got = T._spherical_harmonics(degree, torch.tensor(d, dtype=torch.float32),
+                                     torch.tensor(coeffs, dtype=torch.float32)).numpy()
+        np.testing.assert_allclose(got, want, atol=2e-5, rtol=0)
+    # Projection: a centred principal point (gsplat's per-side frustum clamp then equals the
+    # reference's), Gaussians in front of the camera, many of them sub-pixel.
+    w, h = 64, 40
+    cam = Camera(K=[[50.0, 0, w / 2], [0, 52.0, h / 2], [0, 0, 1]],
+                 camera_to_world=look_at((0.3, 0.2, -3.0), (0, 0, 0), up=(0, -1, 0)),
+                 width=w, height=h)
+    g, _ = _world(9, n=300, sh_degree=0)
+    g.means[:, 2] = np.abs(g.means[:, 2])
+    g.scales[::2] *= 0.05
+    for eps2d in (0.1, 0.3):
+        settings = RenderSettings(antialiased=True, eps2d=eps2d)
+        p = ref.project(g, cam, settings=settings)
+        R = ref.quat_to_rotmat(g.quats.astype(np.float64))
+        M = R * g.scales.astype(np.float64)[:, None, :]
+        covars = M @ np.transpose(M, (0, 2, 1))
+        f32 = lambda a: torch.tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+        radii, means2d, depths, conics, comp = T._fully_fused_projection(
+            f32(g.means), f32(covars), f32(cam.world_to_camera)[None], f32(cam.K)[None], w, h,
+            eps2d=eps2d, near_plane=0.01, far_plane=1e10, calc_compensations=True)
+        both = p["visible"] & (radii.reshape(1, 300, -1)[0] > 0).all(-1).numpy()
+        assert both.sum() > 100
+        uv = np.stack([p["u"], p["v"]], axis=1)
+        np.testing.assert_allclose(means2d[0].numpy()[both], uv[both], atol=1e-3, rtol=1e-5)
+        np.testing.assert_allclose(conics[0].numpy()[both], p["conic"][both], rtol=1e-3,
+                                   atol=1e-5)
+        want = p["opacity"]
+        floor = getattr(gsplat_tree.cuda._torch_impl, "MIN_COMPENSATION", None)
+        if floor is not None:
+            # gsplat's development version floors the compensation at 0.005 (1.5.x does not;
+            # clearsplat follows the released versions; docs/backbones.md).
+            want = g.opacities * np.maximum(want / g.opacities, floor)
+        np.testing.assert_allclose((comp[0].numpy() * g.opacities)[both], want[both],
+                                   atol=1e-5, rtol=1e-4)
+        np.testing.assert_allclose(depths[0].numpy()[both], p["depth"][both], rtol=1e-5)

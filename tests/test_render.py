@@ -611,3 +611,28 @@ def test_bad_render_settings_name_the_field(tmp_path, render_obj, field):
     with pytest.raises(ClearsplatError) as e:
         load_scene(tmp_path / "b", require_images=False)
     assert e.value.field == field and str(e.value.path) == str(path)
+
+
+def test_filter_and_report_render_with_the_scene_settings(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import FilterConfig, filter_distractors
+    from clearsplat.render import api
+    from clearsplat.report import write_report
+    from clearsplat.synth.backbone import reconstruct
+    from clearsplat.synth.worlds import make_world
+    world = make_world("object", num_views=3, seed=2, height=64, width=96)
+    scene = replace(reconstruct(world.cameras, world.images, world.depths, seed=2),
+                    render_settings=AA)
+    used = []
+    real = api.prepare_view
+
+    def spy(*args):
+        used.append(args[5] if len(args) > 5 else None)
+        return real(*args)
+
+    monkeypatch.setattr(api, "prepare_view", spy)
+    result = filter_distractors(scene, config=FilterConfig(), extractor=get_extractor("local"))
+    write_report(str(tmp_path), scene, result)
+    assert len(used) >= scene.num_views and all(s == AA for s in used)

@@ -19,17 +19,26 @@ __all__ = ["run_demo"]
 
 def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: int = 0,
              height: int = 256, width: int = 448, config: FilterConfig | None = None,
-             log: Callable[[str], None] = print, progress=None) -> dict:
+             log: Callable[[str], None] = print, progress=None, force: bool = False) -> dict:
     """Build, reconstruct and filter one cluttered scene; write pictures into ``out_dir``.
+
+    ``out_dir`` is written the way every clearsplat output folder is
+    (:func:`clearsplat.io.output.output_folder`): checked before any work, filled in a
+    temporary folder and swapped into place at the end, so a failed run leaves nothing and an
+    earlier demo's pictures never mix with new ones. ``force=True`` replaces an earlier
+    clearsplat output folder, nothing else.
 
     Returns a dict with the table's numbers. ``out_dir`` receives ``test_XX_{baseline,
     filtered,reference,truth}.png``, the filter report (``report/report.html``) and
     ``summary.txt``.
     """
+    from .io.output import check_output_folder, output_folder
+
     config = config or FilterConfig()
-    os.makedirs(out_dir, exist_ok=True)
+    check_output_folder(out_dir, force=force)
     t0 = time.perf_counter()
-    log(f"[1/4] building a {family} world with {num_views} cluttered views at {width}x{height}")
+    log(f"[1/4] building a synthetic {family!r} world with {num_views} cluttered views at "
+        f"{width}x{height}")
     world = make_world(family, num_views=num_views, seed=seed, height=height, width=width)
     log("[2/4] reconstructing with the stand-in backbone (one Gaussian per input pixel)")
     scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
@@ -37,21 +46,39 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
     log(f"[3/4] filtering {len(scene):,} Gaussians")
     result = filter_distractors(scene, config=config, progress=progress)
     log("[4/4] rendering test views and writing pictures")
-    n_test = len(world.test_cameras)
     before = render_batch(scene, world.test_cameras)
-    after = render_batch(scene, world.test_cameras, [result.keep] * n_test)
+    after = render_batch(scene, world.test_cameras, [result.keep] * len(world.test_cameras))
     ref = render_batch(clean, world.test_cameras)
-    for t in range(n_test):
+    numbers = _numbers(world, scene, result, before, after, ref)
+    with output_folder(out_dir, force=force, command="demo") as tmp:
+        _write_pictures(tmp, world, before, after, ref)
+        write_report(os.path.join(tmp, "report"), scene, result,
+                     source=f"synthetic {family!r} world, {num_views} views, seed {seed}, "
+                            f"{width}x{height} (clearsplat demo)")
+        numbers["total_s"] = time.perf_counter() - t0
+        table = _table(numbers, out_dir)
+        with open(os.path.join(tmp, "summary.txt"), "w") as f:
+            f.write(table + "\n")
+    log("")
+    log(table)
+    return numbers
+
+
+def _write_pictures(folder, world, before, after, ref) -> None:
+    """``test_XX_{baseline,filtered,reference,truth}.png`` per test view."""
+    for t in range(len(world.test_cameras)):
         for name, r in (("baseline", before[t].rgb), ("filtered", after[t].rgb),
                         ("reference", ref[t].rgb), ("truth", world.test_images[t])):
-            write_png(os.path.join(out_dir, f"test_{t:02d}_{name}.png"), r)
-    write_report(os.path.join(out_dir, "report"), scene, result)
+            write_png(os.path.join(folder, f"test_{t:02d}_{name}.png"), r)
+
+
+def _numbers(world, scene, result, before, after, ref) -> dict:
     stats = removal_stats(result.removed, distractor_truth(scene, world))
 
     def mean(metric, renders):
         return float(np.mean([metric(r.rgb, im) for r, im in zip(renders, world.test_images)]))
 
-    numbers = {
+    return {
         "baseline_psnr": mean(psnr, before), "filtered_psnr": mean(psnr, after),
         "reference_psnr": mean(psnr, ref), "baseline_ssim": mean(ssim, before),
         "filtered_ssim": mean(ssim, after), "reference_ssim": mean(ssim, ref),
@@ -59,9 +86,11 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
         "removed": int(result.removed.sum()), "gaussians": len(scene),
         "proposal_s": result.timings["proposal"],
         "verification_s": result.timings["verification"],
-        "total_s": time.perf_counter() - t0,
     }
-    table = "\n".join([
+
+
+def _table(numbers: dict, out_dir) -> str:
+    return "\n".join([
         f"{'':<28}{'PSNR':>8}{'SSIM':>9}",
         f"{'baseline (cluttered input)':<28}{numbers['baseline_psnr']:>8.2f}"
         f"{numbers['baseline_ssim']:>9.4f}",
@@ -78,8 +107,3 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
         f"pictures: {out_dir} (test_*_baseline/filtered/reference/truth.png, "
         f"report/report.html)",
     ])
-    with open(os.path.join(out_dir, "summary.txt"), "w") as f:
-        f.write(table + "\n")
-    log("")
-    log(table)
-    return numbers

@@ -158,6 +158,10 @@ class Gaussians:
     def __len__(self) -> int:
         return int(self.means.shape[0])
 
+    def __repr__(self) -> str:
+        extra = f", extra {sorted(self.extra)}" if self.extra else ""
+        return f"Gaussians({len(self):,}, SH degree {self.sh_degree}{extra})"
+
     @property
     def sh_degree(self) -> int:
         """Spherical-harmonic degree: 0 for K=1, 1 for 4, 2 for 9, 3 for 16, 4 for 25."""
@@ -253,6 +257,14 @@ class Scene:
     # -- properties --------------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.gaussians)
+
+    def __repr__(self) -> str:
+        sizes = sorted({(c.width, c.height) for c in self.cameras})
+        size = ", ".join(f"{w}x{h}" for w, h in sizes) or "no cameras"
+        aligned = "pixel-aligned" if self.is_pixel_aligned else "not pixel-aligned"
+        images = "with images" if self.images is not None else "without images"
+        return (f"Scene({len(self):,} Gaussians, SH degree {self.gaussians.sh_degree}; "
+                f"{self.num_views} views of {size}; {aligned}; {images})")
 
     @property
     def num_views(self) -> int:

@@ -170,7 +170,7 @@ _VALID_K = {1: 0, 4: 1, 9: 2, 16: 3, 25: 4, 36: 5}
 
 def sh_to_clearsplat(sh: np.ndarray, *, max_sh_degree: int, name: str = "harmonics"):
     """Coefficients (..., 3, d_sh) (model order) or (..., K, 3) (clearsplat order) ->
-    (M, K, 3) float32 with bands above ``max_sh_degree`` (and above 3) dropped.
+    (M, K, 3) float32 with bands above ``max_sh_degree`` (at most 4) dropped.
 
     The two orders cannot be confused: 3 is never a valid number of coefficients.
     """
@@ -181,8 +181,8 @@ def sh_to_clearsplat(sh: np.ndarray, *, max_sh_degree: int, name: str = "harmoni
     elif not (sh.shape[-1] == 3 and sh.shape[-2] in _VALID_K):
         raise ClearsplatError(f"expected (..., 3, d_sh) or (..., d_sh, 3) with d_sh a square "
                               f"(1, 4, 9, 16, 25), got shape {sh.shape}", field=name)
-    if not 0 <= int(max_sh_degree) <= 3:
-        raise ClearsplatError(f"must be 0..3, got {max_sh_degree}", field="max_sh_degree")
+    if not 0 <= int(max_sh_degree) <= 4:
+        raise ClearsplatError(f"must be 0..4, got {max_sh_degree}", field="max_sh_degree")
     k = min(sh.shape[-2], (int(max_sh_degree) + 1) ** 2)
     return np.ascontiguousarray(sh[..., :k, :].reshape(-1, k, 3), dtype=np.float32)
 
@@ -312,9 +312,11 @@ def grid_layout(n: int, *, num_views: int, height: int, width: int, spp: int | N
     return view_id, pixel_id, (gh, gw, per)
 
 
-def make_scene(means, scales, quats, opacities, sh, view_id, pixel_id, cameras, images) -> Scene:
-    """Build and validate the scene."""
+def make_scene(means, scales, quats, opacities, sh, view_id, pixel_id, cameras, images,
+               render_settings=None) -> Scene:
+    """Build and validate the scene (``render_settings``: the backbone's renderer)."""
     g = Gaussians(means=means, scales=scales, quats=quats, opacities=opacities, sh=sh)
-    scene = Scene(g, view_id=view_id, pixel_id=pixel_id, cameras=cameras, images=images)
+    scene = Scene(g, view_id=view_id, pixel_id=pixel_id, cameras=cameras, images=images,
+                  render_settings=render_settings)
     scene.validate()
     return scene

@@ -14,7 +14,9 @@ filter then associates it through the rasterizer. Minority views of a mixed voxe
 recorded.
 
 The Gaussians are in the frame of the predicted poses (``pred_context_pose``), harmonics as
-the model renders them (not rotated by the encoder). Sources: ``docs/backbones.md``.
+the model renders them (not rotated by the encoder). AnySplat renders with gsplat
+(``rasterize_mode="classic"``, ``radius_clip=0.1``, every SH band it predicts, degree 4), so
+the scene keeps band 4 and carries those render settings. Sources: ``docs/backbones.md``.
 """
 
 from __future__ import annotations
@@ -22,17 +24,21 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ClearsplatError
-from ..scene import Scene
+from ..scene import RenderSettings, Scene
 from ._common import (cameras_from_model, covariance_to_scales_quats, images_checked,
                       make_scene, take_batch, to_numpy)
 from .pixelsplat import native_arrays
 
-__all__ = ["from_anysplat"]
+__all__ = ["from_anysplat", "RENDER_SETTINGS"]
+
+#: How AnySplat's decoder (``decoder_splatting_cuda.py``) calls gsplat: classic, eps2d 0.3,
+#: ``radius_clip=0.1``, all SH bands.
+RENDER_SETTINGS = RenderSettings(radius_clip=0.1)
 
 
 def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
                   batch: int = 0, voxel_inverse=None, valid_mask=None, confidence=None,
-                  kept=None, max_sh_degree: int = 3,
+                  kept=None, max_sh_degree: int = 4,
                   normalized_intrinsics: bool = True) -> Scene:
     """A scene from AnySplat's native output.
 
@@ -46,8 +52,10 @@ def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int
         (normalised), or the poses the Gaussians are expressed in.
     images : [B, V, 3, H, W] or [B, V, H, W, 3], optional
         In [0, 1], before the normalisation shim.
-    height, width, batch, max_sh_degree, normalized_intrinsics
+    height, width, batch, normalized_intrinsics
         As in :func:`clearsplat.adapters.from_depthsplat`.
+    max_sh_degree : int, default 4
+        Bands above it are dropped; gsplat evaluates all of AnySplat's (degree 4).
     voxel_inverse : [B, V*H*W] or [B, V, H, W] int, optional
         With voxelisation: the ``inverse_indices`` of the voxel fusion (pixel -> voxel).
     valid_mask : [B, V, H, W] bool, optional
@@ -117,7 +125,7 @@ def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int
     means, cov, sh, op = means[:count], cov[:count], sh[:count], op[:count]
     scales, quats = covariance_to_scales_quats(cov)
     return make_scene(means, scales, quats, op, sh, view_id, pixel_id, cameras,
-                      images_checked(images, batch, v, h, w))
+                      images_checked(images, batch, v, h, w), RENDER_SETTINGS)
 
 
 def _per_pixel(x, name: str, batch: int, size: int, *, dtype) -> np.ndarray:

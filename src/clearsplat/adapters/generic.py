@@ -15,7 +15,7 @@ __all__ = ["from_pixel_aligned"]
 
 def from_pixel_aligned(means, *, sh, opacities, cameras, images=None, covariances=None,
                        scales=None, quats=None, quat_order: str = "wxyz",
-                       max_sh_degree: int = 3) -> Scene:
+                       max_sh_degree: int = 3, render_settings=None) -> Scene:
     """A scene from per-pixel Gaussians of any model.
 
     Parameters
@@ -40,7 +40,10 @@ def from_pixel_aligned(means, *, sh, opacities, cameras, images=None, covariance
     quat_order : {"wxyz", "xyzw"}
         ``"xyzw"`` for scipy / pixelSplat-style ``rotations``.
     max_sh_degree : int
-        Bands above it are dropped (at most 3).
+        Bands above it are dropped (at most 4; keep the bands the model's renderer evaluates).
+    render_settings : RenderSettings, optional
+        How the model renders (classic 3DGS by default); for example ReSplat's
+        ``RenderSettings(antialiased=True, eps2d=0.1)`` (``docs/backbones.md``).
 
     Returns
     -------
@@ -102,4 +105,4 @@ def from_pixel_aligned(means, *, sh, opacities, cameras, images=None, covariance
     view_id = (idx // (h * w * spp)).astype(np.int32)
     pixel_id = (idx // spp) % (h * w)
     return make_scene(m.reshape(n, 3), sc, q, op, s, view_id, pixel_id, cams,
-                      images_checked(images, 0, v, h, w))
+                      images_checked(images, 0, v, h, w), render_settings)

@@ -12,12 +12,16 @@ normalised by the image size. Sources and details: ``docs/backbones.md``.
 from __future__ import annotations
 
 from ..errors import ClearsplatError
-from ..scene import Scene
+from ..scene import RenderSettings, Scene
 from ._common import (cameras_from_model, covariance_to_scales_quats, field_of, grid_layout,
                       images_checked, make_scene, opacities_checked, sh_to_clearsplat,
                       take_batch, to_numpy)
 
-__all__ = ["from_depthsplat", "from_mvsplat", "from_pixelsplat", "from_resplat"]
+__all__ = ["from_depthsplat", "from_mvsplat", "from_pixelsplat", "from_resplat",
+           "RESPLAT_RENDER_SETTINGS"]
+
+#: ReSplat renders with gsplat, ``rasterize_mode="antialiased"``, ``eps2d=0.1``.
+RESPLAT_RENDER_SETTINGS = RenderSettings(antialiased=True, eps2d=0.1)
 
 
 def native_arrays(gaussians, batch: int, max_sh_degree: int):
@@ -42,7 +46,8 @@ def native_arrays(gaussians, batch: int, max_sh_degree: int):
 
 
 def _from_grid(gaussians, extrinsics, intrinsics, images, *, height, width, batch, spp, grid,
-               allow_coarse, max_sh_degree, normalized_intrinsics, model) -> Scene:
+               allow_coarse, max_sh_degree, normalized_intrinsics, model,
+               render_settings=None) -> Scene:
     cameras = cameras_from_model(extrinsics, intrinsics, batch=batch, height=height,
                                  width=width, normalized_intrinsics=normalized_intrinsics)
     means, cov, sh, op = native_arrays(gaussians, batch, max_sh_degree)
@@ -51,7 +56,8 @@ def _from_grid(gaussians, extrinsics, intrinsics, images, *, height, width, batc
                                        allow_coarse=allow_coarse, model=model)
     scales, quats = covariance_to_scales_quats(cov)
     return make_scene(means, scales, quats, op, sh, view_id, pixel_id, cameras,
-                      images_checked(images, batch, len(cameras), height, width))
+                      images_checked(images, batch, len(cameras), height, width),
+                      render_settings)
 
 
 def from_depthsplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
@@ -81,7 +87,8 @@ def from_depthsplat(gaussians, extrinsics, intrinsics, images=None, *, height: i
     spp : int, optional
         Gaussians per pixel (``num_surfaces * gaussians_per_pixel``); inferred from ``G``.
     max_sh_degree : int
-        Bands above it are dropped (3 at most: clearsplat stores degree 0 to 3).
+        Bands above it are dropped (4 at most). The original 3DGS rasterizer these models
+        render with evaluates degree 3 at most, hence the default.
     normalized_intrinsics : bool
 
     Returns
@@ -114,7 +121,7 @@ def from_pixelsplat(gaussians, extrinsics, intrinsics, images=None, **kwargs) ->
 
 
 def from_resplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
-                 batch: int = 0, grid: tuple | None = None, max_sh_degree: int = 3,
+                 batch: int = 0, grid: tuple | None = None, max_sh_degree: int = 4,
                  normalized_intrinsics: bool = True) -> Scene:
     """A scene from ReSplat's native output: Gaussians on a per-view latent grid.
 
@@ -129,6 +136,9 @@ def from_resplat(gaussians, extrinsics, intrinsics, images=None, *, height: int,
     Other parameters
         As in :func:`from_depthsplat` (``spp`` is 1). The harmonics are used as the model
         renders them (its encoder does not rotate them; the renderer reads them as world-frame).
+        ReSplat renders with gsplat, which evaluates every band it predicts: ``max_sh_degree``
+        defaults to 4, and the scene carries its settings, ``RESPLAT_RENDER_SETTINGS``
+        (antialiased, eps2d 0.1).
 
     Returns
     -------
@@ -140,4 +150,5 @@ def from_resplat(gaussians, extrinsics, intrinsics, images=None, *, height: int,
     return _from_grid(gaussians, extrinsics, intrinsics, images, height=height, width=width,
                       batch=batch, spp=1 if grid is not None else None, grid=grid,
                       allow_coarse=True, max_sh_degree=max_sh_degree,
-                      normalized_intrinsics=normalized_intrinsics, model="ReSplat")
+                      normalized_intrinsics=normalized_intrinsics, model="ReSplat",
+                      render_settings=RESPLAT_RENDER_SETTINGS)

@@ -1,4 +1,4 @@
-"""Rotation of real spherical-harmonic colour coefficients, degrees 0 to 3.
+"""Rotation of real spherical-harmonic colour coefficients, degrees 0 to 4.
 
 A Gaussian's colour seen along the unit direction ``d`` is ``sum_k sh[k] * Y_k(d) + 0.5``
 with the real SH basis of the original 3DGS code (``docs/conventions.md``). Expressing the same
@@ -25,6 +25,10 @@ _C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.09254843
        0.5462742152960396)
 _C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
        -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+# Degree 4, the sign convention of the bands below (gsplat evaluates it this way).
+_C4 = (2.5033429417967046, -1.7701307697799304, 0.9461746957575601, -0.6690465435572892,
+       0.10578554691520431, -0.6690465435572892, 0.47308734787878004, -1.7701307697799304,
+       0.6258357354491763)
 
 
 def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
@@ -35,7 +39,7 @@ def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
     dirs : (M, 3) array_like
         Unit directions ``x, y, z``.
     degree : int
-        0 to 3.
+        0 to 4.
 
     Returns
     -------
@@ -54,6 +58,13 @@ def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
         out += [_C3[0] * y * (3 * xx - yy), _C3[1] * x * y * z, _C3[2] * y * (4 * zz - xx - yy),
                 _C3[3] * z * (2 * zz - 3 * xx - 3 * yy), _C3[4] * x * (4 * zz - xx - yy),
                 _C3[5] * z * (xx - yy), _C3[6] * x * (xx - 3 * yy)]
+    if degree >= 4:
+        z7 = 7 * zz
+        out += [_C4[0] * x * y * (xx - yy), _C4[1] * y * z * (3 * xx - yy),
+                _C4[2] * x * y * (z7 - 1), _C4[3] * y * z * (z7 - 3),
+                _C4[4] * (zz * (35 * zz - 30) + 3), _C4[5] * x * z * (z7 - 3),
+                _C4[6] * (xx - yy) * (z7 - 1), _C4[7] * x * z * (xx - 3 * yy),
+                _C4[8] * (xx * (xx - 3 * yy) - yy * (3 * xx - yy))]
     return np.stack(out, axis=1)
 
 
@@ -68,7 +79,7 @@ def _sample_dirs() -> np.ndarray:
 
 
 _DIRS = _sample_dirs()
-_PINV = {l: np.linalg.pinv(sh_basis(_DIRS, l)[:, l * l:(l + 1) ** 2]) for l in range(1, 4)}
+_PINV = {l: np.linalg.pinv(sh_basis(_DIRS, l)[:, l * l:(l + 1) ** 2]) for l in range(1, 5)}
 
 
 def sh_rotation_matrices(rotation, degree: int) -> list:
@@ -104,7 +115,7 @@ def rotate_sh(sh, rotation) -> np.ndarray:
     Parameters
     ----------
     sh : (N, K, 3) array_like
-        Coefficients, K in {1, 4, 9, 16}; the DC term does not change.
+        Coefficients, K in {1, 4, 9, 16, 25}; the DC term does not change.
     rotation : (3, 3) or (N, 3, 3) array_like
         Proper rotation(s) ``R`` with ``d_new = R d_old`` (for a camera-frame SH and an
         OpenCV camera-to-world matrix, its rotation block).
@@ -115,8 +126,8 @@ def rotate_sh(sh, rotation) -> np.ndarray:
         ``sum_k out[k] Y_k(R d) == sum_k sh[k] Y_k(d)`` for every direction ``d``.
     """
     c = np.asarray(sh, dtype=np.float64)
-    if c.ndim != 3 or c.shape[2] != 3 or c.shape[1] not in (1, 4, 9, 16):
-        raise ClearsplatError(f"expected (N, K, 3) with K in 1, 4, 9, 16, got {c.shape}",
+    if c.ndim != 3 or c.shape[2] != 3 or c.shape[1] not in (1, 4, 9, 16, 25):
+        raise ClearsplatError(f"expected (N, K, 3) with K in 1, 4, 9, 16, 25, got {c.shape}",
                               field="sh")
     r = np.asarray(rotation, dtype=np.float64)
     if r.shape[-2:] != (3, 3) or r.ndim not in (2, 3) or (r.ndim == 3 and len(r) != len(c)):

@@ -31,18 +31,30 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+
     p = _Parser(prog="clearsplat", description=(
-        "Remove transient distractors from feed-forward 3D Gaussian Splatting predictions."))
-    sub = p.add_subparsers(dest="command", required=True)
+        "Remove transient distractors from feed-forward 3D Gaussian Splatting predictions."),
+        epilog="Run 'clearsplat COMMAND --help' for a command's options; docs/errors.md lists "
+               "every error and exit code.")
+    p.add_argument("--version", action="version", version=f"clearsplat {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").add_parser(sub)
     return p
 
 
 def main(argv=None) -> int:
-    """Run the command line; returns the exit code (0, 2 for bad input, 130 interrupted)."""
+    """Run the command line; returns the exit code (0, 2 for bad input, 130 interrupted).
+
+    ``clearsplat`` without a command prints the help and returns 0, as ``pip`` does: asking
+    for nothing is asking what there is.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
     try:
         with sigterm_as_interrupt():
             return args.func(args)

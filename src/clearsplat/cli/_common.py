@@ -60,12 +60,36 @@ def config_from_args(args):
     return FilterConfig.preset(args.preset).replace(**overrides)
 
 
+#: What ``--help`` says of each preset (``clearsplat.filter.PRESETS``).
+PRESET_HELP = {
+    "default": "clearsplat's default (weight-free 'local' features; docs/method.md)",
+    "paper": "the paper's procedure exactly; needs DINOv3: pip install \"clearsplat[dino]\" "
+             "and a local checkpoint (--checkpoint DIR)",
+    "paper-local": "the paper's procedure with the weight-free 'local' features",
+}
+
+
 def add_config_args(p) -> None:
-    p.add_argument("--preset", default="default", help="'default' or 'paper' (default: default)")
-    p.add_argument("--features", help="feature extractor: local, rgb, dinov2, dinov3")
-    p.add_argument("--checkpoint", help="local DINO checkpoint directory or cached model id")
+    """``--preset``, ``--features``, ``--checkpoint``, ``--set``; the help lists every field."""
+    import argparse
+
+    from ..filter.config import FIELD_SPECS, PRESETS
+
+    presets = "; ".join(f"{name}: {PRESET_HELP.get(name, '')}" for name in PRESETS)
+    p.add_argument("--preset", default="default", metavar="NAME",
+                   help=f"the filter's configuration (default: %(default)s). {presets}")
+    p.add_argument("--features", help="feature extractor: "
+                   + ", ".join(FIELD_SPECS["features"].choices) + " (default: the preset's)")
+    p.add_argument("--checkpoint", help="local DINO checkpoint directory or cached model id "
+                                        "(clearsplat never downloads weights)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a FilterConfig field, e.g. --set verify_base=full (repeatable)")
+                   help="override a FilterConfig field, e.g. --set verify_base=full "
+                        "(repeatable; the fields are listed below)")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    width = max(len(k) for k in FIELD_SPECS)
+    lines = [f"  {k:<{width}}  {spec.allowed()}" for k, spec in FIELD_SPECS.items()]
+    p.epilog = ("--set fields (docs/method.md explains each; true/false, null for None):\n"
+                + "\n".join(lines))
 
 
 @contextlib.contextmanager

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import os
 import sys
 import time
 
 from ..errors import ClearsplatError
-from ._common import add_config_args, config_from_args
+from ._common import add_config_args, config_from_args, warn
 
 
 def add_parser(sub) -> None:
@@ -24,8 +26,42 @@ def add_parser(sub) -> None:
     b.add_argument("--ablation", action="store_true",
                    help="run the ablation of docs/method.md (clearsplat.bench.ABLATIONS)")
     b.add_argument("--out", default="bench-out", help="output folder (default: %(default)s)")
+    b.add_argument("--force", action="store_true",
+                   help="replace an --out folder that an earlier clearsplat run wrote")
     add_config_args(b)
     b.set_defaults(func=run)
+
+
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def check_dependencies(configs: dict, *, real_check: bool) -> None:
+    """Raise ImportError (exit 2) for what the run will need and lacks, before any work."""
+    need = {}
+    if real_check:
+        need["skimage"] = ('the real-image check needs scikit-image: pip install '
+                           '"clearsplat[bench]" (or pass --no-real-check)')
+    for label, cfg in configs.items():
+        if cfg.features.startswith("dino"):
+            for module in ("torch", "transformers"):
+                need.setdefault(module, f"config {label!r} uses the {cfg.features!r} features, "
+                                        f'which need torch and transformers: pip install '
+                                        f'"clearsplat[dino]" and give --checkpoint DIR')
+        if cfg.device != "cpu":
+            for module in ("torch", "gsplat"):
+                need.setdefault(module, f"config {label!r} renders on {cfg.device!r}, which "
+                                        f'needs torch with CUDA and gsplat: pip install '
+                                        f'"clearsplat[gpu]"')
+    for module, message in need.items():
+        if not _installed(module):
+            raise ImportError(message)
+    if not _installed("matplotlib"):
+        warn('matplotlib is not installed: gain.png will not be drawn (pip install '
+             '"clearsplat[bench]")')
 
 
 def run(args) -> int:
@@ -52,6 +88,9 @@ def run(args) -> int:
     except ValueError:
         raise ClearsplatError("expected --resolution HxW and comma-separated integers for "
                               "--views and --seeds", field="--resolution/--views/--seeds") from None
+    from ..io.output import check_output_folder, output_folder
+    check_output_folder(args.out, force=args.force)
+    check_dependencies(configs, real_check=not args.no_real_check)
     t0 = time.perf_counter()
 
     def log(s):
@@ -64,6 +103,8 @@ def run(args) -> int:
     if not args.no_real_check:
         real = run_real_checks(configs, log=log)
         print("\n" + format_real_checks(real))
-    paths = write_outputs(rows, args.out, real)
+    with output_folder(args.out, force=args.force, command="bench") as tmp:
+        names = [os.path.basename(p) for p in write_outputs(rows, tmp, real)]
+    paths = [os.path.join(args.out, n) for n in names]
     print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s; wrote " + ", ".join(paths))
     return 0

@@ -27,7 +27,8 @@ def add_parser(sub) -> None:
     f.set_defaults(func=run)
 
 
-def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False) -> None:
+def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False,
+                  source: str | None = None) -> None:
     """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder)."""
     from ..io import write_ply
 
@@ -44,7 +45,7 @@ def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool
         json.dump(result.summary(), f, indent=1)
     if report:
         from ..report import write_report
-        write_report(os.path.join(folder, "report"), scene, result)
+        write_report(os.path.join(folder, "report"), scene, result, source=source)
 
 
 def run(args) -> int:
@@ -72,7 +73,8 @@ def run(args) -> int:
 
     with output_folder(args.out, inputs=[args.scene], force=args.force,
                        command="filter") as tmp:
-        write_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report)
+        write_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
+                      source=args.scene)
     s = result.summary()
     print(f"removed {s['removed']:,} of {s['gaussians']:,} Gaussians "
           f"({s['accepted']} of {len(s['candidates'])} candidates); wrote {args.out}")

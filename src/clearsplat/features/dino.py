@@ -41,10 +41,12 @@ _IMAGENET_STD = (0.229, 0.224, 0.225)
 
 
 def _how_to(name: str) -> str:
-    return (f"provide a local checkpoint: pass --features {name} --checkpoint "
-            f"/path/to/{name}-vits16 (a directory written by save_pretrained, e.g. a "
-            f"download of {DEFAULT_CHECKPOINTS[name]}), or put {DEFAULT_CHECKPOINTS[name]} "
-            f"in the Hugging Face cache; clearsplat never downloads weights")
+    # Written for both doors: the Python API (FilterConfig) and the command line.
+    return (f"give a local checkpoint, a directory written by save_pretrained (e.g. a download "
+            f"of {DEFAULT_CHECKPOINTS[name]}): FilterConfig(features={name!r}, "
+            f"checkpoint='/path/to/{name}') in Python, or --features {name} --checkpoint "
+            f"/path/to/{name} on the command line; or put {DEFAULT_CHECKPOINTS[name]} in the "
+            f"Hugging Face cache; clearsplat never downloads weights")
 
 
 def _import_backend(name: str):
@@ -54,7 +56,9 @@ def _import_backend(name: str):
     except ImportError as exc:
         raise ImportError(
             f"the {name!r} features need torch and transformers: pip install "
-            f"\"clearsplat[dino]\" (or choose --features local); then {_how_to(name)}"
+            f"\"clearsplat[dino]\" (or use the weight-free features='local', e.g. "
+            f"FilterConfig.preset('paper-local'), --preset paper-local on the command line); "
+            f"then {_how_to(name)}"
         ) from exc
     return torch, transformers
 

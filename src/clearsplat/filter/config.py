@@ -7,12 +7,108 @@ ablation that justifies each default, and ``clearsplat bench --config`` reproduc
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
+import os
 from dataclasses import dataclass
-from typing import Literal
+from typing import Callable, Literal
+
+import numpy as np
 
 from ..errors import ClearsplatError
 
-__all__ = ["FilterConfig", "PRESETS"]
+__all__ = ["FilterConfig", "PRESETS", "FIELD_SPECS", "FieldSpec"]
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """What one :class:`FilterConfig` field accepts; :data:`FIELD_SPECS` holds one per field.
+
+    Attributes
+    ----------
+    kind : {"number", "integer", "bool", "choice", "text"}
+        ``"number"``: a finite real (stored as ``float``); ``"integer"``: an integer (not a bool);
+        ``"bool"``: True or False; ``"choice"``: one of ``choices``; ``"text"``: a string (or
+        path) that ``test`` accepts.
+    low, high : float or None
+        Bounds of a number or integer (None: unbounded); ``low_open`` / ``high_open`` exclude
+        the bound itself.
+    choices : tuple of str
+        The allowed strings of a ``"choice"``.
+    optional : bool
+        None is allowed too.
+    test : callable or None
+        For ``"text"``: returns True for an allowed string; ``what`` describes those strings.
+    """
+
+    kind: Literal["number", "integer", "bool", "choice", "text"]
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple = ()
+    optional: bool = False
+    test: Callable[[str], bool] | None = None
+    what: str = ""
+
+    def allowed(self) -> str:
+        """What the field accepts, in words (used in error messages and docs)."""
+        if self.kind == "bool":
+            text = "true or false"
+        elif self.kind == "choice":
+            text = "one of " + ", ".join(repr(c) for c in self.choices)
+        elif self.kind == "text":
+            text = self.what or "a string"
+        else:
+            noun = "a number" if self.kind == "number" else "an integer"
+            lo, hi = self.low, self.high
+            if lo is not None and hi is not None:
+                text = (f"{noun} in {'(' if self.low_open else '['}{_num(lo)}, "
+                        f"{_num(hi)}{')' if self.high_open else ']'}")
+            elif lo is not None:
+                text = f"{noun} {'>' if self.low_open else '>='} {_num(lo)}"
+            elif hi is not None:
+                text = f"{noun} {'<' if self.high_open else '<='} {_num(hi)}"
+            else:
+                text = "a finite number" if self.kind == "number" else noun
+        return text + (" or None" if self.optional else "")
+
+    def check(self, name: str, value):
+        """``value`` in its stored type (float for numbers, int for integers, str for text), or
+        :class:`ClearsplatError` naming the field, the value and what is allowed."""
+        if value is None and self.optional:
+            return None
+        ok, out = False, value
+        if self.kind == "bool":
+            ok = isinstance(value, (bool, np.bool_))
+            out = bool(value) if ok else value
+        elif self.kind == "choice":
+            ok = isinstance(value, str) and value in self.choices
+        elif self.kind == "text":
+            if isinstance(value, os.PathLike):
+                out = os.fspath(value)
+            ok = isinstance(out, str) and (self.test is None or self.test(out))
+        elif not isinstance(value, (bool, np.bool_)):
+            if self.kind == "integer" and isinstance(value, numbers.Integral):
+                ok, out = True, int(value)
+            elif self.kind == "number" and isinstance(value, numbers.Real):
+                out = float(value)
+                ok = math.isfinite(out)
+            if ok:
+                ok = ((self.low is None or (out > self.low if self.low_open else out >= self.low))
+                      and (self.high is None
+                           or (out < self.high if self.high_open else out <= self.high)))
+        if not ok:
+            raise ClearsplatError(f"got {value!r}; expected {self.allowed()}", field=name)
+        return out
+
+
+def _num(x: float) -> str:
+    return f"{x:g}"
+
+
+def _is_device(text: str) -> bool:
+    return text in ("cpu", "cuda") or (text.startswith("cuda:") and text[5:].isdigit())
 
 
 @dataclass(frozen=True)
@@ -20,7 +116,9 @@ class FilterConfig:
     """Options of :func:`clearsplat.filter_distractors`.
 
     Paper symbols in brackets. Thresholds left at ``None`` take the value calibrated
-    for the chosen feature extractor.
+    for the chosen feature extractor. Every field is checked on construction against its entry
+    in :data:`FIELD_SPECS` (type and range); a wrong value raises :class:`ClearsplatError`
+    naming the field, the value and what is allowed.
 
     Attributes
     ----------
@@ -127,39 +225,13 @@ class FilterConfig:
     device: str = "cpu"
 
     def __post_init__(self):
-        if not isinstance(self.device, str) or not (
-                self.device == "cpu" or self.device == "cuda"
-                or (self.device.startswith("cuda:") and self.device[5:].isdigit())):
-            raise ClearsplatError(f"unknown device {self.device!r}; expected 'cpu', 'cuda' or "
-                                  "'cuda:N'", field="device")
-        if self.verify_base not in ("full", "exclude-own"):
-            raise ClearsplatError(f"unknown value {self.verify_base!r}; expected 'full' or "
-                                  "'exclude-own'", field="verify_base")
-        if self.joint_base not in ("full", "exclude-own"):
-            raise ClearsplatError(f"unknown value {self.joint_base!r}; expected 'full' or "
-                                  "'exclude-own'", field="joint_base")
-        if self.refine not in ("static-depth", "depth", "none"):
-            raise ClearsplatError(f"unknown value {self.refine!r}; expected 'static-depth', "
-                                  "'depth' or 'none'", field="refine")
-        if self.verify_mask not in ("proposals+revealing", "proposals"):
-            raise ClearsplatError(f"unknown value {self.verify_mask!r}; expected "
-                                  "'proposals+revealing' or 'proposals'", field="verify_mask")
+        for f in dataclasses.fields(self):
+            spec = FIELD_SPECS.get(f.name)
+            if spec is not None:        # tests/test_config.py requires a spec for every field
+                object.__setattr__(self, f.name, spec.check(f.name, getattr(self, f.name)))
         if self.verify_mask == "proposals+revealing" and self.refine == "none":
-            raise ClearsplatError("'proposals+revealing' needs refine other than 'none'",
-                                  field="verify_mask")
-        if self.verify_holes not in ("auto", "skip", "count"):
-            raise ClearsplatError(f"unknown value {self.verify_holes!r}; expected 'auto', "
-                                  "'skip' or 'count'", field="verify_holes")
-        if self.view_memory is not None and not (
-                isinstance(self.view_memory, (int, float)) and not isinstance(self.view_memory, bool)
-                and self.view_memory > 0
-                and self.view_memory < float("inf")):
-            raise ClearsplatError(f"expected a positive number of GB or None, got "
-                                  f"{self.view_memory!r}", field="view_memory")
-        if self.num_verify_views < 1:
-            raise ClearsplatError("must be at least 1", field="num_verify_views")
-        if self.dilation < 0:
-            raise ClearsplatError("must be >= 0", field="dilation")
+            raise ClearsplatError("'proposals+revealing' needs refine other than 'none' "
+                                  "(or choose verify_mask='proposals')", field="verify_mask")
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
             raise ClearsplatError(f"tau1 ({self.tau1}) must be below tau2 ({self.tau2})",
                                   field="tau1/tau2")
@@ -168,11 +240,15 @@ class FilterConfig:
     def preset(cls, name: str, **overrides) -> "FilterConfig":
         """A named configuration, optionally with some fields overridden.
 
-        ``"paper"`` is the paper's procedure exactly (DINOv3 features, individual test from the
-        full representation); ``"default"`` is clearsplat's default.
+        ``"default"`` is clearsplat's default; ``"paper"`` is the paper's procedure exactly
+        (DINOv3 features, individual test from the full representation), which needs
+        ``pip install "clearsplat[dino]"`` and a local checkpoint
+        (``FilterConfig.preset("paper", checkpoint="/path/to/dinov3")``); ``"paper-local"`` is
+        the paper's procedure with the weight-free ``"local"`` features.
         """
         if name not in PRESETS:
-            raise ClearsplatError(f"unknown preset {name!r}; choose from {sorted(PRESETS)}",
+            raise ClearsplatError(f"unknown preset {name!r}; choose one of "
+                                  f"{', '.join(repr(p) for p in PRESETS)}",
                                   field="preset")
         return dataclasses.replace(PRESETS[name], **overrides)
 
@@ -181,11 +257,59 @@ class FilterConfig:
         names = {f.name for f in dataclasses.fields(self)}
         for k in changes:
             if k not in names:
-                raise ClearsplatError(f"unknown option {k!r}", field=k)
+                raise ClearsplatError(f"unknown option {k!r}; the options are "
+                                      f"{', '.join(sorted(names))}", field=k)
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    def describe(self) -> str:
+        """The preset this config equals (``"preset 'default'"``), or the nearest preset and
+        the fields that differ from it (``"preset 'default' with eta=0.4"``)."""
+        fields = [f.name for f in dataclasses.fields(self)]
+        diff = {name: [k for k in fields if getattr(p, k) != getattr(self, k)]
+                for name, p in PRESETS.items()}
+        name = min(diff, key=lambda n: len(diff[n]))
+        if not diff[name]:
+            return f"preset {name!r}"
+        return f"preset {name!r} with " + ", ".join(f"{k}={getattr(self, k)!r}"
+                                                    for k in diff[name])
+
+
+def _unit(**kw) -> FieldSpec:
+    return FieldSpec("number", 0.0, 1.0, **kw)
+
+
+#: What each :class:`FilterConfig` field accepts. Every field has an entry (a test checks it):
+#: a new field needs its spec here.
+FIELD_SPECS: dict[str, FieldSpec] = {
+    "features": FieldSpec("choice", choices=("local", "rgb", "dinov2", "dinov3")),
+    "checkpoint": FieldSpec("text", optional=True, test=bool,
+                            what="a checkpoint directory or model id"),
+    "tau1": FieldSpec("number", -1.0, 1.0, optional=True),
+    "tau2": FieldSpec("number", -1.0, 1.0, optional=True),
+    "eta": _unit(),
+    "num_verify_views": FieldSpec("integer", 1),
+    "epsilon": FieldSpec("number", 0.0, 3.0),           # L1 over RGB in [0, 1]: at most 3
+    "dilation": FieldSpec("integer", 0),
+    "second_range": FieldSpec("bool"),
+    "single_threshold": FieldSpec("bool"),
+    "verify": FieldSpec("bool"),
+    "verify_base": FieldSpec("choice", choices=("full", "exclude-own")),
+    "joint_base": FieldSpec("choice", choices=("exclude-own", "full")),
+    "refine": FieldSpec("choice", choices=("static-depth", "depth", "none")),
+    "refine_margin": FieldSpec("number", 0.0),
+    "refine_color": FieldSpec("number", 0.0, 3.0, optional=True),
+    "verify_mask": FieldSpec("choice", choices=("proposals+revealing", "proposals")),
+    "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
+    "min_score": FieldSpec("number"),
+    "association_min_weight": _unit(low_open=True),
+    "incremental": FieldSpec("bool"),
+    "num_threads": FieldSpec("integer", 1, optional=True),
+    "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
+    "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
+}
 
 
 PRESETS = {

@@ -74,6 +74,12 @@ class Candidate:
     accepted: bool = False
     reason: str = "not verified"
 
+    def __repr__(self) -> str:
+        scores = ", ".join(f"{k} {v:+.4f}" for k, v in self.scores.items())
+        return (f"Candidate({self.index}: view {self.view}, range {self.range}, "
+                f"{int(self.pixels.sum()):,} pixels, {self.gaussians.size:,} Gaussians"
+                f"{'; ' + scores if scores else ''}; {self.reason})")
+
     def record(self) -> dict:
         """A JSON-friendly summary."""
         return {
@@ -115,6 +121,13 @@ class FilterResult:
     config: FilterConfig
     warnings: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        accepted = sum(c.accepted for c in self.candidates)
+        warned = f"; {len(self.warnings)} warning(s)" if self.warnings else ""
+        return (f"FilterResult(removed {int((~self.keep).sum()):,} of {self.keep.size:,} "
+                f"Gaussians; {accepted} of {len(self.candidates)} candidates accepted; "
+                f"{self.config.describe()}; {self.timings.get('total', 0.0):.2f} s{warned})")
 
     @property
     def removed(self) -> np.ndarray:
@@ -424,7 +437,8 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_coun
         s = totals[c.index].score
         c.scores["individual"] = s
         if c.gaussians.size == 0:
-            c.reason = "no Gaussians in region"
+            c.reason = ("no Gaussians in region" if config.refine == "none"
+                        else "no Gaussians left: none survived refinement")
         elif s > config.min_score:
             c.reason = "passed individual test"
         else:

@@ -7,7 +7,8 @@ goes through :func:`output_folder`:
 - ``out`` may not be an input, contain an input, or be a file or link;
 - an existing non-empty ``out`` is replaced only with ``force=True`` and only when clearsplat
   wrote it (it holds :data:`MARKER`, or the ``removed.npy`` + ``summary.json`` pair of an earlier
-  ``clearsplat filter``); inside an input folder only such a folder may be replaced;
+  ``clearsplat filter``); inside an input folder nothing is ever replaced (a new or empty folder
+  there may be written);
 - everything is written into a hidden temporary folder beside ``out`` (created with the user's
   umask) and renamed into place at the end, so a failed or interrupted run leaves nothing behind
   and an earlier output stays whole until the new one is complete.
@@ -87,20 +88,29 @@ def check_output_folder(out, *, inputs: Iterable = (), force: bool = False,
     if not os.listdir(out):
         return
     wrote = is_clearsplat_output(out)
-    if inside_input and not wrote:
-        raise ClearsplatError("is inside an input folder and was not written by clearsplat; "
-                              "choose another folder", path=given, field=field)
-    if not force:
-        raise ClearsplatError("exists and is not empty; pass --force to replace it"
-                              + ("" if wrote else " (only a folder clearsplat wrote can be "
-                                 "replaced)"), path=given, field=field)
+    if inside_input:
+        raise ClearsplatError("is inside an input folder and not empty; clearsplat never "
+                              "replaces anything inside an input, choose a new folder",
+                              path=given, field=field)
     if not wrote:
-        raise ClearsplatError(f"refusing to replace a folder that clearsplat did not write (no "
-                              f"{MARKER}); choose another folder", path=given, field=field)
+        raise ClearsplatError(f"exists, is not empty and clearsplat did not write it (no "
+                              f"{MARKER}); clearsplat never replaces such a folder, choose "
+                              f"another", path=given, field=field)
+    if not force:
+        raise ClearsplatError("exists and is not empty (an earlier clearsplat output); pass "
+                              "--force to replace it", path=given, field=field)
 
 
 def _umask() -> int:
-    mask = os.umask(0o022)
+    """The process's umask, read without changing it where the system allows (Linux)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)              # elsewhere: set and restore at once
     os.umask(mask)
     return mask
 

@@ -13,12 +13,13 @@ The call uses the clearsplat conventions, which are also gsplat's: world-to-came
 (``viewmats``), pixel intrinsics ``Ks``, OpenCV camera axes, quaternions ``w x y z`` (normalised
 inside), linear scales, opacities in [0, 1], SH coefficients ``[N, K, 3]`` evaluated as
 ``max(0, SH(d) + 0.5)`` with ``d`` from the camera centre to the Gaussian, pixel centres at +0.5,
-``packed=False``, ``eps2d=0.3``, ``radius_clip=0``, ``rasterize_mode="classic"``,
-``render_mode="RGB+D"``.
+``packed=False``, ``render_mode="RGB+D"``; the scene's render settings give ``rasterize_mode``,
+``eps2d``, ``radius_clip`` and ``sh_degree`` (see :mod:`clearsplat.render._gsplat_call` for the
+gsplat versions supported and their batch dimensions).
 
 Differences from the CPU path (:func:`clearsplat.render.render`), all small:
 
-- gsplat adds the same 0.3-pixel 2D blur, but clamps the Jacobian per side of an off-centre
+- gsplat adds the same ``eps2d`` 2D blur (and the same antialiasing compensation), but clamps the Jacobian per side of an off-centre
   principal point (``(W - cx) / fx + 0.3 tan_fov`` on one side, ``cx / fx + 0.3 tan_fov`` on the
   other) where the CPU path clamps ``x/z`` to ``1.3 W / (2 fx)`` on both sides: identical for a
   centred principal point.
@@ -47,56 +48,19 @@ import numpy as np
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
-from ..scene import Gaussians, Scene
+from ..scene import Gaussians, RenderSettings, Scene
+from ._gsplat_call import batch_layout, import_gsplat, rasterize, tensor
 from .base import (TILE, Contributions, RenderResult, _check_background, _check_camera,
-                   _check_gaussians, _check_indices, _check_keep, _check_near, _gaussians,
-                   _TiledView)
+                   _check_gaussians, _check_indices, _check_keep, _check_near, _check_settings,
+                   _gaussians, _TiledView)
 from .native import PreparedView, check_threads, prepare_view
 
 __all__ = ["render_gsplat", "upload_gaussians", "DeviceGaussians", "GsplatView",
            "prepare_gsplat", "prepare_gsplat_views"]
 
-_HINT = ("clearsplat's GPU path (render_gsplat, prepare_gsplat) needs PyTorch with CUDA, the "
-         "gsplat package (`pip install gsplat`) and a CUDA GPU")
-
 #: Device memory one batched call of :meth:`GsplatView.render_many` may use for the per-render
 #: copies gsplat makes (its batch dimensions need contiguous ``[B, N, ...]`` inputs).
 _BATCH_BYTES = 1 << 30
-
-
-def _import_gsplat(device):
-    """torch and ``gsplat.rasterization``, or ImportError saying what is missing."""
-    try:
-        import torch
-    except ImportError as e:
-        raise ImportError(f"{_HINT}: PyTorch is not installed ({e})") from None
-    try:
-        from gsplat import rasterization
-    except ImportError as e:
-        raise ImportError(f"{_HINT}: gsplat is not installed ({e})") from None
-    if str(device).startswith("cuda") and not torch.cuda.is_available():
-        raise ImportError(f"{_HINT}: torch.cuda.is_available() is False")
-    return torch, rasterization
-
-
-def _tensor(torch, a, device):
-    """A float32 tensor of a NumPy array on ``device`` (shares memory on the CPU)."""
-    a = np.ascontiguousarray(a, dtype=np.float32)
-    if not a.flags.writeable:      # torch.from_numpy warns on read-only arrays
-        a = a.copy()
-    return torch.from_numpy(a).to(device)
-
-
-def _rasterize(torch, rasterization, *, means, quats, scales, opacities, sh, sh_degree,
-               viewmats, Ks, width, height, near, backgrounds):
-    """One ``gsplat.rasterization`` call with clearsplat's settings (no autograd)."""
-    with torch.no_grad():
-        return rasterization(
-            means=means, quats=quats, scales=scales, opacities=opacities, colors=sh,
-            viewmats=viewmats, Ks=Ks, width=int(width), height=int(height),
-            near_plane=float(near), sh_degree=int(sh_degree), packed=False, tile_size=TILE,
-            eps2d=0.3, radius_clip=0.0, backgrounds=backgrounds, render_mode="RGB+D",
-            rasterize_mode="classic")
 
 
 def _results(colors, alphas, height: int, width: int) -> list[RenderResult]:
@@ -121,7 +85,8 @@ def _background_result(bg: np.ndarray, height: int, width: int) -> RenderResult:
 
 
 def render_gsplat(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0),
-                  near: float = 0.01, device: str = "cuda") -> RenderResult:
+                  near: float = 0.01, device: str = "cuda",
+                  settings: RenderSettings | None = None) -> RenderResult:
     """Render a scene from a camera with gsplat on a GPU.
 
     Parameters
@@ -136,6 +101,8 @@ def render_gsplat(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0
         Near plane (gsplat's ``near_plane``).
     device : str
         Torch device, ``"cuda"`` or ``"cuda:1"``...
+    settings : RenderSettings, optional
+        By default the scene's (classic 3DGS for Gaussians).
 
     Returns
     -------
@@ -150,6 +117,7 @@ def render_gsplat(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0
     ClearsplatError
         Bad ``keep``, ``background`` or ``camera``.
     """
+    settings = _check_settings(settings, scene)
     g = scene.gaussians if isinstance(scene, Scene) else scene
     if not isinstance(g, Gaussians):
         raise ClearsplatError(f"expected a Scene or Gaussians, got {type(scene).__name__}",
@@ -167,19 +135,19 @@ def render_gsplat(scene, camera: Camera, *, keep=None, background=(0.0, 0.0, 0.0
             raise ClearsplatError(f"expected ({n},) bool, got {keep.shape} {keep.dtype}",
                                   field="keep")
         g = g.subset(keep)
-    torch, rasterization = _import_gsplat(device)
+    torch, rasterization = import_gsplat(device)
     h, w = camera.height, camera.width
     if len(g) == 0:
         return _background_result(bg, h, w)
 
     def t(a):
-        return _tensor(torch, a, device)
+        return tensor(torch, a, device)
 
-    colors, alphas, _ = _rasterize(
+    colors, alphas, _ = rasterize(
         torch, rasterization, means=t(g.means), quats=t(g.quats), scales=t(g.scales),
-        opacities=t(g.opacities), sh=t(g.sh), sh_degree=g.sh_degree,
-        viewmats=t(camera.world_to_camera)[None], Ks=t(camera.K)[None], width=w, height=h,
-        near=near, backgrounds=t(bg)[None])
+        opacities=t(g.opacities), sh=t(g.sh), viewmats=t(camera.world_to_camera)[None],
+        Ks=t(camera.K)[None], width=w, height=h, near=near, backgrounds=t(bg)[None],
+        settings=settings)
     return _results(colors, alphas, h, w)[0]
 
 
@@ -198,6 +166,8 @@ class DeviceGaussians:
         The torch device.
     num_gaussians : int
     sh_degree : int
+    settings : RenderSettings
+        How every view of these Gaussians renders (the scene's by default).
     means, quats, scales : torch.Tensor
         (N, 3), (N, 4), (N, 3) float32.
     opacities : torch.Tensor
@@ -208,17 +178,19 @@ class DeviceGaussians:
         Device bytes held.
     """
 
-    def __init__(self, gaussians: Gaussians, *, device: str, torch, rasterization):
+    def __init__(self, gaussians: Gaussians, *, device: str, torch, rasterization,
+                 settings: RenderSettings | None = None):
         self.gaussians = gaussians
+        self.settings = RenderSettings() if settings is None else settings
         self.device = str(device)
         self.num_gaussians = len(gaussians)
         self.sh_degree = gaussians.sh_degree
         self._torch, self._rasterization = torch, rasterization
-        self.means = _tensor(torch, gaussians.means, device)
-        self.quats = _tensor(torch, gaussians.quats, device)
-        self.scales = _tensor(torch, gaussians.scales, device)
-        self.opacities = _tensor(torch, gaussians.opacities, device)
-        self.sh = _tensor(torch, gaussians.sh, device)
+        self.means = tensor(torch, gaussians.means, device)
+        self.quats = tensor(torch, gaussians.quats, device)
+        self.scales = tensor(torch, gaussians.scales, device)
+        self.opacities = tensor(torch, gaussians.opacities, device)
+        self.sh = tensor(torch, gaussians.sh, device)
 
     @property
     def memory_bytes(self) -> int:
@@ -230,7 +202,8 @@ class DeviceGaussians:
                 f"{self.memory_bytes / 2**20:.1f} MiB)")
 
 
-def upload_gaussians(scene, *, device: str = "cuda") -> DeviceGaussians:
+def upload_gaussians(scene, *, device: str = "cuda",
+                     settings: RenderSettings | None = None) -> DeviceGaussians:
     """Upload a scene's Gaussians to a torch device once, for :func:`prepare_gsplat`.
 
     Parameters
@@ -238,6 +211,8 @@ def upload_gaussians(scene, *, device: str = "cuda") -> DeviceGaussians:
     scene : Scene or Gaussians
     device : str
         Torch device, ``"cuda"``, ``"cuda:1"``... (gsplat renders on CUDA only).
+    settings : RenderSettings, optional
+        By default the scene's (classic 3DGS for Gaussians).
 
     Returns
     -------
@@ -252,14 +227,16 @@ def upload_gaussians(scene, *, device: str = "cuda") -> DeviceGaussians:
     """
     g = _gaussians(scene)
     _check_gaussians(g)
+    settings = _check_settings(settings, scene)
     if not isinstance(device, str):
         raise ClearsplatError(f"expected a torch device name, got {device!r}", field="device")
-    torch, rasterization = _import_gsplat(device)
+    torch, rasterization = import_gsplat(device)
     try:
         torch.device(device)
     except (RuntimeError, ValueError) as e:
         raise ClearsplatError(f"not a torch device: {device!r} ({e})", field="device") from None
-    return DeviceGaussians(g, device=device, torch=torch, rasterization=rasterization)
+    return DeviceGaussians(g, device=device, torch=torch, rasterization=rasterization,
+                           settings=settings)
 
 
 # -- prepared GPU view -----------------------------------------------------------------------
@@ -306,8 +283,8 @@ class GsplatView(_TiledView):
         self.camera = camera
         self.near = float(near)
         torch, dev = gaussians._torch, gaussians.device
-        self._viewmat = _tensor(torch, camera.world_to_camera, dev)[None]   # (1, 4, 4)
-        self._K = _tensor(torch, camera.K, dev)[None]                       # (1, 3, 3)
+        self._viewmat = tensor(torch, camera.world_to_camera, dev)[None]   # (1, 4, 4)
+        self._K = tensor(torch, camera.K, dev)[None]                       # (1, 3, 3)
         self._index = None    # (V,) int32 visible Gaussians, ascending
         self._rects = None    # (V, 4) uint16 tile range [x0, x1) x [y0, y1) as x0, y0, x1, y1
         self._inside = None   # (V,) bool centre inside the image
@@ -483,11 +460,15 @@ class GsplatView(_TiledView):
         return out
 
     def _raster(self, keeps: list, bg: np.ndarray) -> list[RenderResult]:
-        """One gsplat call for ``keeps`` (None: all), batched over a leading dimension."""
+        """One gsplat call for ``keeps`` (None: all), batched over a leading dimension; one call
+        per keep where the installed gsplat has no batch dimensions."""
         d = self.gaussians
         torch, dev = d._torch, d.device
-        bgt = _tensor(torch, bg, dev)[None]                         # (1, 3)
         b = len(keeps)
+        layout = batch_layout(torch, d._rasterization, dev) if b > 1 else None
+        if b > 1 and layout is None:
+            return [r for k in keeps for r in self._raster([k], bg)]
+        bgt = tensor(torch, bg, dev)[None]                         # (1, 3)
 
         def opacities(k):
             if k is None:
@@ -503,12 +484,12 @@ class GsplatView(_TiledView):
             args = dict(means=d.means.expand(b, n, 3), quats=d.quats.expand(b, n, 4),
                         scales=d.scales.expand(b, n, 3),
                         opacities=torch.stack([opacities(k) for k in keeps]),
-                        sh=d.sh.expand(b, *d.sh.shape),
+                        sh=d.sh if layout == "shared_sh" else d.sh.expand(b, *d.sh.shape),
                         viewmats=self._viewmat.expand(b, 1, 4, 4), Ks=self._K.expand(b, 1, 3, 3),
                         backgrounds=bgt.expand(b, 1, 3))
-        colors, alphas, meta = _rasterize(
-            torch, d._rasterization, sh_degree=d.sh_degree, width=self.camera.width,
-            height=self.camera.height, near=self.near, **args)
+        colors, alphas, meta = rasterize(
+            torch, d._rasterization, width=self.camera.width, height=self.camera.height,
+            near=self.near, settings=d.settings, **args)
         if self._index is None and any(k is None for k in keeps):
             # gsplat >= 1.5 gives radii per axis ([..., C, N, 2]), older versions [..., C, N].
             n = d.num_gaussians
@@ -544,10 +525,11 @@ class GsplatView(_TiledView):
                     batch_size: int | None = None) -> list[RenderResult]:
         """Render several subsets of this view; equal to calling :meth:`render` for each.
 
-        Batches go through gsplat's leading batch dimension (one call per batch). gsplat makes
-        contiguous per-element copies of the Gaussians for it, so the default batch size keeps
-        those under 1 GiB (about ``N * (160 + 12 K)`` bytes an element); for a large scene it
-        is 1, a plain loop.
+        Batches go through gsplat's leading batch dimension (one call per batch) where the
+        installed gsplat has one (1.5.3 and later; earlier versions get one call per render).
+        gsplat makes contiguous per-element copies of the Gaussians for it, so the default
+        batch size keeps those under 1 GiB (about ``N * (160 + 12 K)`` bytes an element); for
+        a large scene it is 1, a plain loop.
 
         Parameters
         ----------
@@ -657,7 +639,7 @@ class GsplatView(_TiledView):
     def _cpu_view(self) -> PreparedView:
         if self._cpu is None:
             self._cpu = prepare_view(self.gaussians.gaussians, self.camera, None, self.near,
-                                     check_threads(None))
+                                     check_threads(None), self.gaussians.settings)
         return self._cpu
 
 
