@@ -607,7 +607,7 @@ def test_every_batch_layout_and_the_scene_settings_reach_gsplat(monkeypatch, lay
     from clearsplat.render.gsplat import prepare_gsplat_views
     s = RenderSettings(antialiased=True, eps2d=0.1, radius_clip=0.1) if settings else None
     fake = _install(monkeypatch, FakeGsplat(layout, s))
-    g, cams = _world(3, n=300, sh_degree=4 if settings else 2)
+    g, cams = _world(3, n=200, sh_degree=4 if settings else 2)
     g.scales[::2] *= 0.05
     fake.add(*cams)
     scene = Scene(g, np.zeros(len(g), np.int32), None, cams,
@@ -615,7 +615,7 @@ def test_every_batch_layout_and_the_scene_settings_reach_gsplat(monkeypatch, lay
     views = prepare_gsplat_views(scene, cams, device="cpu")
     rng = np.random.default_rng(2)
     keeps = [None, rng.uniform(size=len(g)) > 0.3, rng.uniform(size=len(g)) > 0.6]
-    for gv, cam in zip(views, cams):
+    for gv, cam in zip(views[1:], cams[1:]):      # the rotated, off-centre camera
         pv = prepare(scene, cam)
         fake.calls.clear()
         many = gv.render_many(keeps)

@@ -29,8 +29,9 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
     clearsplat output folder, nothing else.
 
     Returns a dict with the table's numbers. ``out_dir`` receives ``test_XX_{baseline,
-    filtered,reference,truth}.png``, the filter report (``report/report.html``) and
-    ``summary.txt``.
+    filtered,reference,truth}.png``, the filter report (``report/report.html``) with a before |
+    after video (``report/video.mp4``), the scene bundle (``scene/``), the filter's output
+    bundle (``filtered/``, as ``clearsplat filter`` writes it) and ``summary.txt``.
     """
     from .io.output import check_output_folder, output_folder
 
@@ -52,11 +53,12 @@ def run_demo(out_dir: str, *, family: str = "object", num_views: int = 8, seed: 
     numbers = _numbers(world, scene, result, before, after, ref)
     with output_folder(out_dir, force=force, command="demo") as tmp:
         _write_pictures(tmp, world, before, after, ref)
+        video = _save_bundles_and_video(tmp, scene, result, progress=progress)
         write_report(os.path.join(tmp, "report"), scene, result,
                      source=f"synthetic {family!r} world, {num_views} views, seed {seed}, "
-                            f"{width}x{height} (clearsplat demo)")
+                            f"{width}x{height} (clearsplat demo)", video=video.name)
         numbers["total_s"] = time.perf_counter() - t0
-        table = _table(numbers, out_dir)
+        table = _table(numbers, out_dir) + "\n" + _where(out_dir, video.name)
         with open(os.path.join(tmp, "summary.txt"), "w") as f:
             f.write(table + "\n")
     log("")
@@ -107,3 +109,40 @@ def _table(numbers: dict, out_dir) -> str:
         f"pictures: {out_dir} (test_*_baseline/filtered/reference/truth.png, "
         f"report/report.html)",
     ])
+
+
+def _where(out_dir, video_name: str) -> str:
+    scene, filtered = os.path.join(out_dir, "scene"), os.path.join(out_dir, "filtered")
+    return "\n".join([
+        f"before | after video: {os.path.join(out_dir, 'report', video_name)}",
+        f"scene bundles: {scene} (input), {filtered} (filter output); in 3D:",
+        f"  clearsplat view {scene} --filtered {filtered}",
+    ])
+
+
+def _save_bundles_and_video(folder, scene, result, *, progress=None):
+    """``scene/`` and ``filtered/`` bundles, and ``report/video.mp4``; returns the video's path.
+
+    ``filtered/`` holds what ``clearsplat filter scene --out filtered`` writes; its
+    ``cameras.json`` refers to the images of ``scene/`` (``image_root``).
+    """
+    import json
+
+    from .io import load_cameras, save_bundle_cameras, save_scene, write_ply
+    from .video import make_video
+
+    source = os.path.join(folder, "scene")
+    save_scene(scene, source)
+    filtered = os.path.join(folder, "filtered")
+    os.makedirs(filtered)
+    kept = scene.subset(result.keep)
+    write_ply(os.path.join(filtered, "gaussians.ply"), kept.gaussians, view_id=kept.view_id,
+              pixel_id=kept.pixel_id)
+    np.save(os.path.join(filtered, "removed.npy"), np.ascontiguousarray(result.removed, bool))
+    with open(os.path.join(filtered, "summary.json"), "w") as f:
+        json.dump(result.summary(), f, indent=1)
+    cameras, images = load_cameras(source)
+    save_bundle_cameras(filtered, cameras, images, render=scene.render_settings)
+    os.makedirs(os.path.join(folder, "report"), exist_ok=True)
+    return make_video(os.path.join(folder, "report", "video.mp4"), scene, result.keep,
+                      num_frames=48, progress=progress)

@@ -98,7 +98,8 @@ SCORE_UNITS = ("Scores are the change-weighted mean reduction of the per-pixel L
                "input. A test passes above min_score.")
 
 
-def write_report(out_dir: str, scene, result, *, source: str | None = None) -> str:
+def write_report(out_dir: str, scene, result, *, source: str | None = None,
+                 video: str | None = None) -> str:
     """Write the per-view pictures and ``report.html`` into ``out_dir``; return the HTML path.
 
     Parameters
@@ -110,6 +111,9 @@ def write_report(out_dir: str, scene, result, *, source: str | None = None) -> s
     result : FilterResult
     source : str, optional
         What the scene came from (a bundle path, or a description), named on the page.
+    video : str, optional
+        A before | after video (``.mp4``, or a ``.gif``), relative to ``out_dir``, shown
+        above the per-view pictures.
     """
     from .render import prepare
 
@@ -159,7 +163,7 @@ def write_report(out_dir: str, scene, result, *, source: str | None = None) -> s
              "figure{display:inline-block;width:13.6%;margin:0.2%;vertical-align:top}"
              "figure img{width:100%}figcaption{font-size:0.72em;color:#333}"
              "h2{margin-top:1.2em;font-size:1.05em}td,th{padding:2px 8px;text-align:right}"
-             "</style>",
+             ".video video,.video img{width:min(100%,1100px)}</style>",
              "<h1>clearsplat filter report</h1>",
              f"<p>Input: {html.escape(source or 'an in-memory scene', quote=False)} "
              f"({len(scene):,} Gaussians, {scene.num_views} views).<br>"
@@ -171,6 +175,7 @@ def write_report(out_dir: str, scene, result, *, source: str | None = None) -> s
              f"<code>refine={result.config.refine!r}</code> are removed). Proposal "
              f"{summary['timings'].get('proposal', 0):.2f} s, verification "
              f"{summary['timings'].get('verification', 0):.2f} s.</p>",
+             *_video_html(video),
              f"<p>Pictures per view, left to right:</p><ul>{legend}</ul>"]
     for i, files, n in rows:
         parts.append(f"<h2>View {i}: {n['accepted']} of {n['candidates']} candidates "
@@ -195,3 +200,13 @@ def write_report(out_dir: str, scene, result, *, source: str | None = None) -> s
     with open(path, "w") as f:
         f.write("\n".join(parts))
     return path
+
+
+def _video_html(video) -> list:
+    if not video:
+        return []
+    src = html.escape(str(video).replace(os.sep, "/"))
+    tag = (f"<img src='{src}' alt='before | after'>" if src.lower().endswith(".gif") else
+           f"<video src='{src}' controls autoplay loop muted playsinline></video>")
+    return ["<h2>Before | after, along a path through the input cameras (novel views between "
+            "them)</h2>", f"<div class='video'>{tag}</div>"]

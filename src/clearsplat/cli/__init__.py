@@ -19,7 +19,7 @@ from ._common import one_line, sigterm_as_interrupt
 __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: The command modules, in the order ``clearsplat --help`` lists them.
-COMMANDS = ("demo", "filter", "bench")
+COMMANDS = ("demo", "filter", "view", "video", "render", "export", "bench")
 
 
 class _Parser(argparse.ArgumentParser):

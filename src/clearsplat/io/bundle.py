@@ -20,6 +20,11 @@ in ``docs/conventions.md``, "Render settings"). Image paths are relative to
 the bundle; absolute paths, paths with ``..`` and paths that a symbolic link leads out of the
 bundle are refused (links that stay inside are followed).
 
+An optional top-level ``"image_root": "../scene"`` (relative to the JSON file's folder, or
+absolute) moves the folder that image paths are relative to: the bundles that
+``clearsplat filter`` writes use it to read the input's images where they are instead of copying
+them. Image paths stay relative to that root and may not leave it.
+
 A nerfstudio ``transforms.json`` is read in its place: ``transform_matrix`` in OpenGL axes,
 ``fl_x fl_y cx cy w h`` at the top level or per frame (per frame wins), ``file_path`` per
 frame. ``fl_y`` defaults to ``fl_x``, ``cx, cy`` to ``w / 2, h / 2``; ``camera_angle_x``
@@ -44,7 +49,7 @@ from ..scene import RenderSettings, Scene, register_bundle_writer
 from .images import read_image, write_image
 from .ply import RAW_PREFIX, atomic_write_bytes, read_ply, write_ply
 
-__all__ = ["load_scene", "save_scene", "load_cameras", "save_cameras",
+__all__ = ["load_scene", "save_scene", "load_cameras", "save_cameras", "save_bundle_cameras",
            "CAMERAS_FILE", "TRANSFORMS_FILE", "GAUSSIANS_FILE"]
 
 CAMERAS_FILE = "cameras.json"
@@ -162,15 +167,16 @@ def load_cameras(path) -> tuple[list, list]:
     ----------
     path : str or os.PathLike
         A ``cameras.json`` or nerfstudio ``transforms.json`` file, or a bundle folder
-        (``cameras.json`` is used when both exist).
+        (``cameras.json`` is used when both exist). A JSON object holding one frame
+        (``width``, ``height``, ``K``, ``camera_to_world``) without ``frames`` is one camera.
 
     Returns
     -------
     cameras : list of Camera
         In frame order, which gives the view ids 0..N-1.
     image_paths : list of pathlib.Path or None
-        Each frame's image, joined to the folder of the JSON file; None for a frame
-        without an image entry.
+        Each frame's image, joined to the folder of the JSON file (or to its ``image_root``);
+        None for a frame without an image entry.
 
     Raises
     ------
@@ -190,6 +196,8 @@ def load_cameras(path) -> tuple[list, list]:
             raise ClearsplatError(f"no {CAMERAS_FILE} or {TRANSFORMS_FILE} in the bundle",
                                   path=path, field="cameras")
     doc = _read_json(path)
+    if isinstance(doc, dict) and "frames" not in doc and "camera_to_world" in doc:
+        doc = {"frames": [doc]}         # one camera, in the frame format
     if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list):
         raise ClearsplatError("expected an object with a 'frames' list", path=path,
                               field="frames")
@@ -199,6 +207,13 @@ def load_cameras(path) -> tuple[list, list]:
                               field="frames")
     nerfstudio = path.name == TRANSFORMS_FILE or any(
         isinstance(f, dict) and "transform_matrix" in f for f in frames)
+    root = path.parent
+    if doc.get("image_root") is not None:
+        value = doc["image_root"]
+        if not isinstance(value, str) or not value or "\x00" in value:
+            raise ClearsplatError("expected a non-empty folder path string", path=path,
+                                  field="image_root")
+        root = path.parent / value
     cameras, images = [], []
     for i, frame in enumerate(frames):
         field = f"frames[{i}]"
@@ -211,7 +226,7 @@ def load_cameras(path) -> tuple[list, list]:
         cameras.append(cam)
         key = "file_path" if nerfstudio else "image"
         images.append(None if image is None
-                      else _inside_bundle(path.parent, image, path, f"{field}.{key}"))
+                      else _inside_bundle(root, image, path, f"{field}.{key}"))
     return cameras, images
 
 
@@ -411,6 +426,68 @@ def _relative_to(image, folder: Path, path, i) -> str:
     elif p.parts[:len(folder.parts)] == folder.parts and folder.parts:
         p = p.relative_to(folder)
     return _relative_image_path(p.as_posix(), path, f"frames[{i}].image")
+
+
+def save_bundle_cameras(folder, cameras, image_paths, *, located_at=None,
+                        copy_images: bool = False, render: RenderSettings | None = None) -> None:
+    """Write ``cameras.json`` into ``folder`` so that it loads as a bundle with the given images.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        An existing folder (usually a temporary folder that is renamed to ``located_at``).
+    cameras : sequence of Camera
+    image_paths : sequence of (os.PathLike or None)
+        The images as :func:`load_cameras` returns them (paths to existing files).
+    located_at : str or os.PathLike, optional
+        Where ``folder`` will live when it is read; the ``image_root`` is relative to it.
+        Default: ``folder``.
+    copy_images : bool, default False
+        Copy the images into ``folder/images/`` instead of referring to them where they are.
+    render : RenderSettings, optional
+        Written as in :func:`save_cameras`.
+
+    Notes
+    -----
+    Without ``copy_images`` the images stay where they are: ``cameras.json`` gets an
+    ``image_root`` (the folder that holds them all, relative to ``located_at``, or absolute
+    where no relative path exists), so moving the bundle together with its input keeps it
+    loadable; moving it alone needs ``--copy-images``.
+    """
+    folder = Path(folder)
+    located_at = Path(located_at if located_at is not None else folder).absolute()
+    real = [None if p is None else Path(os.path.realpath(p)) for p in image_paths]
+    present = [p for p in real if p is not None]
+    target = folder / CAMERAS_FILE
+    if copy_images:
+        names = []
+        if present:
+            (folder / "images").mkdir(exist_ok=True)
+        digits = max(3, len(str(len(real) - 1)))
+        for i, p in enumerate(real):
+            if p is None:
+                names.append(None)
+                continue
+            unique = sum(q is not None and q.name == p.name for q in real) == 1
+            name = f"images/{p.name}" if unique else f"images/{i:0{digits}d}_{p.name}"
+            shutil.copyfile(p, folder / name)
+            names.append(name)
+        save_cameras(target, cameras, names, format="clearsplat", render=render)
+        return
+    root = Path(os.path.commonpath([str(p.parent) for p in present])) if present else None
+    frames = [None if p is None else p.relative_to(root).as_posix() for p in real]
+    if root is None:
+        save_cameras(target, cameras, None, format="clearsplat", render=render)
+        return
+    try:
+        rel = os.path.relpath(root, os.path.realpath(located_at))
+    except ValueError:                  # another drive
+        rel = str(root)
+    save_cameras(target, cameras, [folder / f for f in frames], format="clearsplat",
+                 render=render)
+    doc = json.loads(target.read_text(encoding="utf-8"))
+    doc = {"image_root": Path(rel).as_posix(), **doc}
+    atomic_write_bytes(target, (json.dumps(doc, indent=1) + "\n").encode("utf-8"))
 
 
 # ------------------------------------------------------------------------------------------------
