@@ -15,13 +15,16 @@ is the range of the incremental runs' totals, *first* the first of them (a fresh
 a single ``clearsplat filter`` call sees, page faults of new memory included). *prepared* counts
 camera preparations per run (the number of views, plus views prepared again because they did
 not fit in ``--view-memory``), *skipped* the (view, pass) visits left out because the view sees
-none of the Gaussians concerned, *views GB* the most the prepared views held at once.
+none of the Gaussians concerned, *views GB* the most the prepared views held at once; *CPU s*
+the process CPU time of a run (median; with ``--threads 1`` a measure of the work done that a
+busy machine disturbs far less than wall-clock time).
 Full-render verification is skipped above 16 views (it re-renders every image per candidate).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -33,7 +36,7 @@ import time
 
 
 def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
-          family: str, seed: int, view_memory: float | None) -> dict:
+          family: str, seed: int, view_memory: float | None, threads: int | None) -> dict:
     import numpy as np
 
     from clearsplat._memory import estimate_filter_memory
@@ -46,16 +49,22 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
     t_recon = time.perf_counter() - t0
     extractor = get_extractor("local")
-    cfg = FilterConfig(view_memory=view_memory)
+    options = {f.name for f in dataclasses.fields(FilterConfig)}
+    cfg = FilterConfig(num_threads=threads,
+                       **({"view_memory": view_memory} if "view_memory" in options else {}))
     if views > 16:
         full_repeats = 0
 
     def run(config):
         # Keep what is reported, not the result: a caller holds one result at a time, and
         # holding all of them would make every run allocate fresh memory.
+        cpu0 = time.process_time()
         r = filter_distractors(scene, config=config, extractor=extractor)
+        cpu = time.process_time() - cpu0
         return {"timings": r.timings, "keep": r.keep, "candidates": len(r.candidates),
-                "accepted": sum(c.accepted for c in r.candidates), "stats": r.stats}
+                "accepted": sum(c.accepted for c in r.candidates),
+                "stats": getattr(r, "stats", {}),
+                "cpu": cpu}
 
     inc = [run(cfg) for _ in range(repeats)]
     full = [run(cfg.replace(incremental=False)) for _ in range(full_repeats)]
@@ -69,6 +78,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "reconstruct_s": t_recon,
         "proposal_s": med(inc, "proposal"), "verification_s": med(inc, "verification"),
         "total_s": med(inc, "total"),
+        "cpu_s": statistics.median(r["cpu"] for r in inc),
         # The first run of the process: what one `clearsplat filter` call sees (fresh memory).
         "first_total_s": inc[0]["timings"]["total"],
         "range_total_s": [min(r["timings"]["total"] for r in inc),
@@ -103,6 +113,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--view-memory", default="2.0",
                    help="FilterConfig.view_memory in GB, or 'none' (default 2.0, the default)")
+    p.add_argument("--threads", type=int, help="FilterConfig.num_threads (default: all cores)")
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -110,7 +121,7 @@ def main(argv=None) -> int:
     view_memory = None if args.view_memory.lower() == "none" else float(args.view_memory)
     if args._child:
         row = _case(int(args._child), h, w, args.repeats, args.full_repeats, args.family,
-                    args.seed, view_memory)
+                    args.seed, view_memory, args.threads)
         print(json.dumps(row))
         return 0
     rows = []
@@ -119,6 +130,8 @@ def main(argv=None) -> int:
                "--resolution", args.resolution, "--repeats", str(args.repeats),
                "--full-repeats", str(args.full_repeats), "--family", args.family,
                "--seed", str(args.seed), "--view-memory", args.view_memory]
+        if args.threads:
+            cmd += ["--threads", str(args.threads)]
         res = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
         print(f"  done: {v} views", file=sys.stderr)
@@ -139,10 +152,12 @@ def main(argv=None) -> int:
               f"{('%.1fx' % r['speedup']) if full else 'n/a':>8} {r['peak_rss_gb']:>11.2f} "
               f"{str(r['identical_output']):>11}")
     base = next((r for r in rows if r["views"] == 8), rows[0])
-    print(f"\n{'views':>5} {'x time':>7} {'x peak':>7} {'prepared':>9} {'skipped':>8} "
-          f"{'views GB':>9} {'estimate GB':>12}   (x: against {base['views']} views)")
+    print(f"\n{'views':>5} {'CPU s':>7} {'x CPU':>6} {'x time':>7} {'x peak':>7} "
+          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'estimate GB':>12}   "
+          f"(x: against {base['views']} views)")
     for r in rows:
-        print(f"{r['views']:>5} {r['total_s'] / base['total_s']:>7.2f} "
+        print(f"{r['views']:>5} {r['cpu_s']:>7.2f} {r['cpu_s'] / base['cpu_s']:>6.2f} "
+              f"{r['total_s'] / base['total_s']:>7.2f} "
               f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
               f"{r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} "
               f"{r['memory_estimate_gb']:>12.2f}")
