@@ -93,7 +93,8 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "view_memory": view_memory,
         "memory_estimate_gb": estimate_filter_memory(
             len(scene), scene.cameras,
-            view_budget=None if view_memory is None else int(view_memory * 1e9)) / 1e9,
+            **({"view_budget": None if view_memory is None else int(view_memory * 1e9)}
+               if "view_memory" in options else {})) / 1e9,
     }
     out["steps"] = {k: med(inc, k) for k in inc[0]["timings"] if "." in k}
     if full:
