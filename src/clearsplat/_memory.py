@@ -3,13 +3,13 @@
 The filter's footprint was read off the native rasterizer and measured (``docs/errors.md``,
 "memory"): per camera, a :class:`~clearsplat.render.PreparedView` holds a 60-byte record per
 visible Gaussian (``Splat`` 48 B, ``Rect`` 8 B, index 4 B, ``cpp/raster.h``) plus one int32 per
-(tile, Gaussian) pair and a Gaussian-to-visible map (int32), and the filter adds an own-view
-mask (bool) and a packed visibility bit per view; the prepared views it holds at once are
-bounded by ``FilterConfig.view_memory``; per input pixel it keeps the image, the full and exclusion renders,
-features, similarity maps, proposal masks and verification buffers; per Gaussian the
-projection scratch (76 B, ``cpp/project.cpp``) and a few masks. The constants below make the
-estimate 5 to 15 % above the measured peak on the synthetic scenes (0.23 to 0.92 million
-Gaussians, 4 and 8 views).
+(tile, Gaussian) pair and a Gaussian-to-visible map (int32); the filter holds at once only the
+prepared views that fit in ``FilterConfig.view_memory`` (plus the one being read) and keeps an
+own-view mask (bool) and a packed visibility bit per view. Per input pixel it keeps the image,
+the full and exclusion renders, features, similarity maps, proposal masks and verification
+buffers; per Gaussian the projection scratch (76 B, ``cpp/project.cpp``) and a few masks. The
+constants below make the estimate 5 to 15 % above the measured peak on the synthetic scenes
+(0.23 to 0.92 million Gaussians, 4 and 8 views).
 """
 
 from __future__ import annotations
