@@ -682,9 +682,9 @@ def test_memory_estimate_and_check(monkeypatch):
     assert m.estimate_filter_memory(1000, [cam] * 3, tiles_per_gaussian=4.0,
                                     visible_fraction=0.5) == \
         int(3 * 1000 * (0.5 * 76 + 4) + rest)
-    # a budget bounds the held views at the budget plus the view being read
+    # a budget bounds the held views at the budget plus the views being read and prepared
     assert m.estimate_filter_memory(1000, [cam] * 3, view_budget=50_000) == \
-        int(50_000 + 72_000 + rest)
+        int(50_000 + 2 * 72_000 + rest)
     assert m.estimate_filter_memory(1000, [cam] * 3, view_budget=10**9) == \
         int(3 * 1000 * 72 + rest)
     assert m.estimate_read_memory(10**6) == 5 * 10**6

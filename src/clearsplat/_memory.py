@@ -4,7 +4,8 @@ The filter's footprint was read off the native rasterizer and measured (``docs/e
 "memory"): per camera, a :class:`~clearsplat.render.PreparedView` holds a 60-byte record per
 visible Gaussian (``Splat`` 48 B, ``Rect`` 8 B, index 4 B, ``cpp/raster.h``) plus one int32 per
 (tile, Gaussian) pair and a Gaussian-to-visible map (int32); the filter holds at once only the
-prepared views that fit in ``FilterConfig.view_memory`` (plus the one being read) and keeps an
+prepared views that fit in ``FilterConfig.view_memory`` (plus the one being read and the one
+being prepared) and keeps an
 own-view mask (bool) and a packed visibility bit per view. Per input pixel it keeps the image,
 the full and exclusion renders, features, similarity maps, proposal masks and verification
 buffers; per Gaussian the projection scratch (76 B, ``cpp/project.cpp``) and a few masks. The
@@ -63,7 +64,7 @@ def estimate_filter_memory(num_gaussians: int, cameras: Sequence, *,
         Share of the Gaussians that survive culling in a view (1: every one, an upper bound).
     view_budget : int, optional
         Bytes the prepared views may hold at once (``FilterConfig.view_memory``); the filter
-        then keeps views up to it and one more, the one being read.
+        then keeps views up to it, plus the one being read and the one being prepared.
 
     Returns
     -------
@@ -77,7 +78,7 @@ def estimate_filter_memory(num_gaussians: int, cameras: Sequence, *,
                     + PER_GAUSSIAN_PREPARED)
     held = views * prepared
     if view_budget is not None:
-        held = min(held, int(view_budget) + prepared)
+        held = min(held, int(view_budget) + 2 * prepared)
     return int(held + views * n * PER_GAUSSIAN_VIEW + n * PER_GAUSSIAN + pixels * PER_PIXEL)
 
 
