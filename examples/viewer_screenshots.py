@@ -58,17 +58,26 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("demo", help="the folder 'clearsplat demo --out' wrote")
     p.add_argument("--out", default="docs/images")
+    p.add_argument("--modes", default="original,filtered,removed")
+    p.add_argument("--wait", type=int, default=30,
+                   help="seconds of page time before the first screenshot (default: 30)")
     args = p.parse_args()
     demo, out = Path(args.demo), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scene = clearsplat.load_scene(demo / "scene")
     keep = ~np.load(demo / "filtered" / "removed.npy")
     with tempfile.TemporaryDirectory() as tmp:
-        for mode in ("original", "filtered", "removed"):
+        for mode in args.modes.split(","):
             viewer = serve(scene, keep=keep, port=free_port(), show=mode)
+            raw = Path(tmp) / f"{mode}.png"
             try:
-                raw = Path(tmp) / f"{mode}.png"
-                screenshot(viewer.url, raw)
+                # software WebGL is slow with a million Gaussians: wait longer until they show
+                for budget in (1000 * args.wait, 2000 * args.wait, 4000 * args.wait):
+                    screenshot(viewer.url, raw, budget_ms=budget)
+                    with Image.open(raw) as im:
+                        lit = (np.asarray(im.convert("L"))[160:] > 40).mean()
+                    if lit > 0.05:
+                        break
             finally:
                 viewer.stop()
             # below the browser's "software WebGL" notice, the viewer's panel kept

@@ -470,3 +470,8 @@ def test_view_command_prints_the_url_and_serves(filtered):
             proc.kill()
             proc.communicate()
     assert proc.returncode == 130
+
+
+def test_view_refuses_an_address_of_another_machine(filtered, capsys):
+    code, _, err = run(["view", filtered[0], "--host", "192.0.2.1"], capsys)   # TEST-NET-1
+    assert code == 2 and "--host" in err and len(err.splitlines()) == 1

@@ -22,7 +22,7 @@ from .render import render_batch
 from .synth import clean_reference, distractor_truth, make_world, reconstruct
 
 __all__ = ["BenchCase", "ABLATIONS", "parse_config", "parse_value", "run_real_checks",
-           "format_real_checks", "run_case", "run_suite", "format_tables",
+           "format_real_checks", "run_case", "run_cell", "run_suite", "format_tables",
            "write_outputs"]
 
 #: The ablation of docs/method.md: each departure of the default from the paper switched off
@@ -139,16 +139,39 @@ def run_case(case: BenchCase, *, log: Callable[[str], None] = lambda s: None,
 def run_suite(*, families: Sequence[str] = ("object", "street"),
               views: Sequence[int] = (4, 8, 16), seeds: Sequence[int] = (0,),
               configs: dict | None = None, height: int = 256, width: int = 448,
-              log: Callable[[str], None] = lambda s: None, extractor=None) -> list[dict]:
-    """Run the benchmark grid; rows as returned by :func:`run_case`."""
+              log: Callable[[str], None] = lambda s: None, extractor=None,
+              workers: int | None = None, address: str | None = None) -> list[dict]:
+    """Run the benchmark grid; rows as returned by :func:`run_case`, in grid order.
+
+    With ``workers`` or ``address`` each cell (world, view count, seed) is a Ray task
+    (:mod:`clearsplat.batch`): ``workers`` CPUs of a local Ray instance started and stopped
+    here, or the cluster at ``address``. Otherwise the cells run one after another in this
+    process. The rows are the same either way; only the timings differ.
+    """
     configs = configs or {"default": FilterConfig()}
-    rows = []
-    for family in families:
-        for v in views:
-            for seed in seeds:
-                case = BenchCase(family, v, seed, height, width, configs)
-                rows.extend(run_case(case, log=log, extractor=extractor))
-    return rows
+    cases = [BenchCase(family, v, seed, height, width, configs)
+             for family in families for v in views for seed in seeds]
+    if workers is None and address is None:
+        rows = []
+        for case in cases:
+            rows.extend(run_case(case, log=log, extractor=extractor))
+        return rows
+    from .batch import TaskFailed, ray_cluster, run_tasks
+    results: list = [None] * len(cases)
+    with ray_cluster(address=address, num_cpus=workers) as ray:
+        for i, result in run_tasks(ray, run_cell, [(c, extractor) for c in cases]):
+            c = cases[i]
+            if isinstance(result, TaskFailed):
+                raise RuntimeError(f"{c.family} {c.num_views} views seed {c.seed}: {result}")
+            results[i] = result
+            log(f"{c.family} {c.num_views} views seed {c.seed}: done")
+    return [row for rows in results for row in rows]
+
+
+def run_cell(job: tuple) -> list[dict]:
+    """``run_case(case, extractor=extractor)`` for ``job = (case, extractor)``: one Ray task."""
+    case, extractor = job
+    return run_case(case, extractor=extractor)
 
 
 def run_real_checks(configs: dict, *, extractor=None,

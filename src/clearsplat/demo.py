@@ -123,26 +123,18 @@ def _where(out_dir, video_name: str) -> str:
 def _save_bundles_and_video(folder, scene, result, *, progress=None):
     """``scene/`` and ``filtered/`` bundles, and ``report/video.mp4``; returns the video's path.
 
-    ``filtered/`` holds what ``clearsplat filter scene --out filtered`` writes; its
-    ``cameras.json`` refers to the images of ``scene/`` (``image_root``).
+    ``filtered/`` holds what ``clearsplat filter scene --out filtered`` writes (without its
+    report); its ``cameras.json`` refers to the images of ``scene/`` (``image_root``).
     """
-    import json
-
-    from .io import load_cameras, save_bundle_cameras, save_scene, write_ply
+    from .batch import write_filter_outputs
+    from .io import save_scene
     from .video import make_video
 
     source = os.path.join(folder, "scene")
     save_scene(scene, source)
     filtered = os.path.join(folder, "filtered")
     os.makedirs(filtered)
-    kept = scene.subset(result.keep)
-    write_ply(os.path.join(filtered, "gaussians.ply"), kept.gaussians, view_id=kept.view_id,
-              pixel_id=kept.pixel_id)
-    np.save(os.path.join(filtered, "removed.npy"), np.ascontiguousarray(result.removed, bool))
-    with open(os.path.join(filtered, "summary.json"), "w") as f:
-        json.dump(result.summary(), f, indent=1)
-    cameras, images = load_cameras(source)
-    save_bundle_cameras(filtered, cameras, images, render=scene.render_settings)
+    write_filter_outputs(filtered, scene, result, source=source)
     os.makedirs(os.path.join(folder, "report"), exist_ok=True)
     return make_video(os.path.join(folder, "report", "video.mp4"), scene, result.keep,
                       num_frames=48, progress=progress)

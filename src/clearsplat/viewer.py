@@ -207,13 +207,14 @@ def _populate(server, scene, keep, modes, show, image_width) -> Viewer:
         handle.on_click(_look_through(cam, fov, i, frustums))
         frustums.append(handle)
 
-    # the browser starts a little behind input view 0, looking the same way: pixel-aligned
-    # Gaussians look right near the input views, and the neighbouring frustums are in sight
+    # the browser starts looking through input view 0 (as if its frustum had been clicked):
+    # pixel-aligned Gaussians look right from the input views
     c0 = cams[0]
     forward = c0.camera_to_world[:3, 2]
     dist = float(np.linalg.norm(c0.position - centre)) or 1.0
-    eye = c0.position - 0.35 * dist * forward
+    eye = c0.position
     target = c0.position + dist * forward
+    frustums[0].visible = False
     server.initial_camera.position = tuple(float(v) for v in eye)
     server.initial_camera.look_at = tuple(float(v) for v in target)
     server.initial_camera.up = tuple(float(v) for v in -c0.camera_to_world[:3, 1])

@@ -9,14 +9,15 @@ NumPy), its cameras and input images, and returns a validated scene with the vie
   world frame, normalised intrinsics.
 - :func:`from_noposplat` (= :func:`from_yonosplat`): per-pixel, first view's frame.
 - :func:`from_resplat`: latent grid, ``pixel_id = -1``.
-- :func:`from_anysplat`: per-pixel or voxel-fused.
+- :func:`from_anysplat`: per-pixel or voxel-fused; :func:`anysplat_voxel_inverse` recovers
+  the voxel of every pixel from the encoder's outputs.
 - :func:`from_pixel_aligned`: any other per-pixel model.
 - :func:`covariance_to_scales_quats`, :func:`rotate_sh`: the conversions they use.
 """
 
 from ._common import (NEGATIVE_TOLERANCE, SCALE_FLOOR_ABS, SCALE_FLOOR_RATIO,
                       covariance_to_scales_quats, scales_quats_to_covariance)
-from .anysplat import from_anysplat
+from .anysplat import anysplat_voxel_inverse, from_anysplat
 from .generic import from_pixel_aligned
 from .noposplat import from_noposplat, from_yonosplat
 from .pixelsplat import from_depthsplat, from_mvsplat, from_pixelsplat, from_resplat
@@ -24,7 +25,8 @@ from .sh_rotation import rotate_sh, sh_basis
 
 __all__ = [
     "from_depthsplat", "from_mvsplat", "from_pixelsplat", "from_resplat", "from_noposplat",
-    "from_yonosplat", "from_anysplat", "from_pixel_aligned", "covariance_to_scales_quats",
+    "from_yonosplat", "from_anysplat", "anysplat_voxel_inverse", "from_pixel_aligned",
+    "covariance_to_scales_quats",
     "scales_quats_to_covariance", "rotate_sh", "sh_basis", "SCALE_FLOOR_RATIO",
     "SCALE_FLOOR_ABS", "NEGATIVE_TOLERANCE",
 ]

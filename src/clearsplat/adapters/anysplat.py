@@ -14,9 +14,20 @@ filter then associates it through the rasterizer. Minority views of a mixed voxe
 recorded.
 
 The Gaussians are in the frame of the predicted poses (``pred_context_pose``), harmonics as
-the model renders them (not rotated by the encoder). AnySplat renders with gsplat
-(``rasterize_mode="classic"``, ``radius_clip=0.1``, every SH band it predicts, degree 4), so
-the scene keeps band 4 and carries those render settings. Sources: ``docs/backbones.md``.
+the model renders them (not rotated by the encoder).
+
+Pixel convention: AnySplat unprojects pixel ``(row, col)`` at image coordinates
+``(col, row)`` with ``cx = W / 2`` (VGGT's integer pixel grid), half a pixel before the centre
+``(col + 0.5, row + 0.5)`` that clearsplat (and gsplat) use. ``vggt_pixels=True`` (default)
+moves the cameras' principal points by +0.5 px, so every Gaussian projects into the pixel
+that produced it and the scene renders aligned with its input images.
+
+``voxel_inverse`` is not among AnySplat's outputs (``inference()`` returns the Gaussians and
+the poses): :func:`anysplat_voxel_inverse` recomputes it from the encoder's own outputs.
+
+AnySplat renders with gsplat (``rasterize_mode="classic"``, ``radius_clip=0.1``, every SH
+band it predicts, degree 4), so the scene keeps band 4 and carries those render settings.
+Sources: ``docs/backbones.md``.
 """
 
 from __future__ import annotations
@@ -29,7 +40,7 @@ from ._common import (cameras_from_model, covariance_to_scales_quats, images_che
                       make_scene, take_batch, to_numpy)
 from .pixelsplat import native_arrays
 
-__all__ = ["from_anysplat", "RENDER_SETTINGS"]
+__all__ = ["from_anysplat", "anysplat_voxel_inverse", "RENDER_SETTINGS"]
 
 #: How AnySplat's decoder (``decoder_splatting_cuda.py``) calls gsplat: classic, eps2d 0.3,
 #: ``radius_clip=0.1``, all SH bands.
@@ -38,8 +49,8 @@ RENDER_SETTINGS = RenderSettings(radius_clip=0.1)
 
 def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
                   batch: int = 0, voxel_inverse=None, valid_mask=None, confidence=None,
-                  kept=None, max_sh_degree: int = 4,
-                  normalized_intrinsics: bool = True) -> Scene:
+                  kept=None, max_sh_degree: int = 4, normalized_intrinsics: bool = True,
+                  vggt_pixels: bool = True) -> Scene:
     """A scene from AnySplat's native output.
 
     Parameters
@@ -65,6 +76,10 @@ def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int
         view is then the one with the largest summed softmax weight.
     kept : (N,) bool or int array, optional
         With ``gs_prune``: which of the voxels/pixels survived, in order.
+    vggt_pixels : bool
+        The intrinsics follow VGGT's integer pixel grid (AnySplat's own ``pred_context_pose``):
+        the principal points are moved by +0.5 px to clearsplat's pixel centres. False for
+        intrinsics already in clearsplat's convention.
 
     Returns
     -------
@@ -73,6 +88,8 @@ def from_anysplat(gaussians, extrinsics, intrinsics, images=None, *, height: int
     """
     cameras = cameras_from_model(extrinsics, intrinsics, batch=batch, height=height,
                                  width=width, normalized_intrinsics=normalized_intrinsics)
+    if vggt_pixels:
+        cameras = [_half_pixel(c) for c in cameras]
     v, h, w = len(cameras), int(height), int(width)
     means, cov, sh, op = native_arrays(gaussians, batch, max_sh_degree)
     if voxel_inverse is not None and valid_mask is not None:
@@ -140,3 +157,103 @@ def _per_pixel(x, name: str, batch: int, size: int, *, dtype) -> np.ndarray:
         raise ClearsplatError(f"expected {size} values (V*H*W), got shape {arr.shape}",
                               field=name)
     return arr.reshape(-1)
+
+
+def _half_pixel(cam):
+    from ..cameras import Camera
+    k = cam.K.copy()
+    k[0, 2] += 0.5
+    k[1, 2] += 0.5
+    return Camera(K=k, camera_to_world=cam.camera_to_world, width=cam.width, height=cam.height)
+
+
+def anysplat_voxel_inverse(pose_encoding, depth, *, voxel_size: float, batch: int = 0,
+                           num_gaussians: int | None = None) -> np.ndarray:
+    """The pixel -> voxel index of AnySplat's voxel fusion, from the encoder's own outputs.
+
+    Repeats what the encoder does (``src/model/encoder/anysplat.py``): the last camera-head
+    pose encoding ``pred_pose_enc_list[-1]`` (``absT_quaR_FoV``: translation, quaternion
+    ``x y z w``, vertical and horizontal field of view) -> world-to-camera ``[R | T]`` and
+    pixel intrinsics (``f = (size / 2) / (tan(fov / 2) + 1e-3)``, ``c = size / 2``) -> the depth
+    unprojected on VGGT's integer pixel grid -> ``round(point / voxel_size)`` ->
+    ``unique(dim=0, return_inverse=True)`` over the ``(v, h, w)``-flattened pixels. It works in
+    float32 in the encoder's order of operations; it does not use the returned camera-to-world
+    ``pred_context_pose["extrinsic"]``, whose inversion moves points by round-off and flips
+    boundary voxels.
+
+    Parameters
+    ----------
+    pose_encoding : [B, V, 9] tensor or array
+        ``encoder_output.pred_pose_enc_list[-1]``.
+    depth : [B, V, H, W] or [B, V, H, W, 1]
+        ``encoder_output.depth_dict["depth"]``.
+    voxel_size : float
+        The encoder's ``voxel_size`` (0.002 in the released configs).
+    batch : int
+        Which batch item.
+    num_gaussians : int, optional
+        The number of Gaussians (voxels) of that item: checked against the voxel count.
+
+    Returns
+    -------
+    inverse : (V * H * W,) int64
+        Voxel index of every pixel, ``(v, row, col)`` order; pass as ``voxel_inverse`` to
+        :func:`from_anysplat`.
+
+    Raises
+    ------
+    ClearsplatError
+        Wrong shapes, or a voxel count other than ``num_gaussians`` (wrong ``voxel_size``, or
+        ``gs_prune``: then pass ``kept`` too and leave ``num_gaussians`` out).
+
+    Notes
+    -----
+    PyTorch and NumPy may round a float32 sum differently in its last bit, so a point lying
+    within round-off of a voxel boundary can land in the neighbouring voxel. For the encoder's
+    exact indices run its own functions on the same tensors (``docs/backbones.md``).
+    """
+    enc = take_batch(to_numpy(pose_encoding, "pose_encoding", dtype=np.float32), batch, 2,
+                     "pose_encoding")
+    d = to_numpy(depth, "depth", dtype=np.float32)
+    if d.ndim == 5 and d.shape[-1] == 1:
+        d = d[..., 0]
+    d = take_batch(d, batch, 3, "depth")
+    if enc.ndim != 2 or enc.shape[1] != 9:
+        raise ClearsplatError(f"expected (V, 9), got {enc.shape}", field="pose_encoding")
+    if d.ndim != 3 or d.shape[0] != enc.shape[0]:
+        raise ClearsplatError(f"expected ({enc.shape[0]}, H, W), got {d.shape}", field="depth")
+    if not voxel_size > 0:
+        raise ClearsplatError(f"must be positive, got {voxel_size}", field="voxel_size")
+    v, h, w = d.shape
+    f32 = np.float32
+    t, q = enc[:, :3], enc[:, 3:7]
+    i, j, k, r = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    two_s = f32(2.0) / (q * q).sum(-1)
+    rot = np.stack([
+        1 - two_s * (j * j + k * k), two_s * (i * j - k * r), two_s * (i * k + j * r),
+        two_s * (i * j + k * r), 1 - two_s * (i * i + k * k), two_s * (j * k - i * r),
+        two_s * (i * k - j * r), two_s * (j * k + i * r), 1 - two_s * (i * i + j * j),
+    ], -1).reshape(v, 3, 3).astype(f32)
+    fy = f32(h / 2.0) / (np.tan(enc[:, 7] / f32(2.0)) + f32(1e-3))
+    fx = f32(w / 2.0) / (np.tan(enc[:, 8] / f32(2.0)) + f32(1e-3))
+    u = np.arange(w, dtype=f32)[None, None, :]
+    vv = np.arange(h, dtype=f32)[None, :, None]
+    x_cam = (u - f32(w / 2)) * d / fx[:, None, None]             # (V, H, W)
+    y_cam = (vv - f32(h / 2)) * d / fy[:, None, None]
+    cam = np.stack([x_cam, y_cam, d], -1)
+    rt = np.swapaxes(rot, 1, 2)                                   # camera-to-world rotation
+    top = -(rt @ t[:, :, None])[:, :, 0]                          # camera-to-world translation
+    pts = np.zeros(cam.shape, dtype=f32)
+    for a in range(3):                                            # row a of [R^T | -R^T T]
+        pts[..., a] = (rt[:, a, 0, None, None] * cam[..., 0] + rt[:, a, 1, None, None] *
+                       cam[..., 1] + rt[:, a, 2, None, None] * cam[..., 2] +
+                       top[:, a, None, None])
+    idx = np.round(pts.reshape(-1, 3) / f32(voxel_size)).astype(np.int32)
+    _, inverse = np.unique(idx, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1).astype(np.int64)
+    count = int(inverse.max()) + 1 if inverse.size else 0
+    if num_gaussians is not None and count != int(num_gaussians):
+        raise ClearsplatError(f"{count} voxels for {num_gaussians} Gaussians (wrong voxel_size, "
+                              "or gs_prune: then pass kept= to from_anysplat)",
+                              field="voxel_inverse")
+    return inverse

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ClearsplatError
 from ..scene import Scene
 from ._common import (cameras_from_model, covariance_to_scales_quats, grid_layout,
                       images_checked, make_scene)
@@ -24,15 +25,18 @@ __all__ = ["from_noposplat", "from_yonosplat"]
 
 def from_noposplat(gaussians, extrinsics, intrinsics, images=None, *, height: int, width: int,
                    batch: int = 0, spp: int | None = None, grid: tuple | None = None,
-                   max_sh_degree: int = 3, normalized_intrinsics: bool = True) -> Scene:
+                   max_sh_degree: int = 3, normalized_intrinsics: bool = True,
+                   frame: str = "first_view") -> Scene:
     """A scene from NoPoSplat's (or YoNoSplat's) native output.
 
-    The Gaussians live in the first view's camera frame. ``extrinsics[:, 0]`` says where that
-    frame is in the world of ``extrinsics``: everything (centres, covariances and the
-    spherical harmonics, rotated band by band with :func:`clearsplat.adapters.rotate_sh`) is
-    moved by it. With the model's own relative poses (``extrinsics[:, 0]`` the identity) nothing
-    moves; with poses in another world frame (at the model's scale), the scene lands there and
-    renders the same colours.
+    With ``frame="first_view"`` the Gaussians live in the first view's camera frame and
+    ``extrinsics[:, 0]`` says where that frame is in the world of ``extrinsics``: everything
+    (centres, covariances and the spherical harmonics, rotated band by band with
+    :func:`clearsplat.adapters.rotate_sh`) is moved by it. With the model's own relative poses
+    (``extrinsics[:, 0]`` the identity) nothing moves; with poses in another world frame (at
+    the model's scale), the scene lands there and renders the same colours. With
+    ``frame="extrinsics"`` the Gaussians are already in the frame of ``extrinsics`` (the model
+    placed them with these very poses) and nothing moves.
 
     Parameters
     ----------
@@ -52,6 +56,11 @@ def from_noposplat(gaussians, extrinsics, intrinsics, images=None, *, height: in
     grid : (rows, cols), optional
         Per-view grid when the model predicts below image resolution (YoNoSplat's
         ``gaussian_downsample_ratio``); inferred when left out.
+    frame : {"first_view", "extrinsics"}
+        Where the Gaussians are: in the first context camera's frame (NoPoSplat always;
+        YoNoSplat with its predicted poses, ``pose_free: true``), or already in the frame of the
+        ``extrinsics`` passed (YoNoSplat run with ``pose_free: false``, which places every
+        view's local points with ``context["extrinsics"]`` as given, relative or not).
 
     Returns
     -------
@@ -64,9 +73,12 @@ def from_noposplat(gaussians, extrinsics, intrinsics, images=None, *, height: in
     view_id, pixel_id, _ = grid_layout(len(means), num_views=len(cameras), height=height,
                                        width=width, spp=spp, grid=grid, allow_coarse=True,
                                        model="NoPoSplat")
+    if frame not in ("first_view", "extrinsics"):
+        raise ClearsplatError(f"must be 'first_view' or 'extrinsics', got {frame!r}",
+                              field="frame")
     first = cameras[0].camera_to_world
     rot, t = first[:3, :3], first[:3, 3]
-    if not np.array_equal(first, np.eye(4)):
+    if frame == "first_view" and not np.array_equal(first, np.eye(4)):
         means = means @ rot.T + t
         cov = np.einsum("ij,njk,lk->nil", rot, cov, rot)
         if sh.shape[1] > 1:
@@ -77,10 +89,18 @@ def from_noposplat(gaussians, extrinsics, intrinsics, images=None, *, height: in
 
 
 def from_yonosplat(gaussians, extrinsics, intrinsics, images=None, **kwargs) -> Scene:
-    """YoNoSplat's native output; same frame, layout and options as :func:`from_noposplat`.
+    """YoNoSplat's native output; same layout and options as :func:`from_noposplat`.
 
-    Pass the poses the Gaussians were placed with: the predicted ones
-    (``visualization_dump["pred_camera_poses"]``, relative to the first view) unless the model
-    was run with ground-truth extrinsics.
+    YoNoSplat places each view's local points with ``c2w`` (``visualization_dump["c2w"]``):
+    its predicted poses made relative to the first view when ``pose_free`` (the released
+    setting), else ``context["extrinsics"]`` exactly as given. So:
+
+    - ``pose_free: true``: the Gaussians are in the first view's frame. Pass the predicted
+      poses (``visualization_dump["pred_camera_poses"]``; nothing moves), or other poses of the
+      same views at the model's scale (``frame="first_view"``, the default: the scene moves by
+      ``extrinsics[:, 0]``).
+    - ``pose_free: false``: the Gaussians are in the frame of the extrinsics the model was
+      given, relative or not; pass those with ``frame="extrinsics"`` (nothing moves). With
+      relative poses (first view the identity) both settings agree.
     """
     return from_noposplat(gaussians, extrinsics, intrinsics, images, **kwargs)

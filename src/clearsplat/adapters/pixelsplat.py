@@ -45,9 +45,33 @@ def native_arrays(gaussians, batch: int, max_sh_degree: int):
     return means, cov, sh, opacities_checked(op, g)
 
 
+def check_batch_concat(gaussians, extrinsics, model: str) -> None:
+    """Refuse Gaussians whose batch axis is a multiple of the cameras' (DepthSplat in train mode).
+
+    DepthSplat's encoder with ``supervise_intermediate_depth`` and more than one depth
+    prediction (its depth network returns the intermediate scales only in training mode)
+    concatenates the Gaussians of every intermediate depth along the batch axis:
+    ``B * num_depths`` items, the final prediction last. Adapting item 0 would silently take
+    the coarsest intermediate depth.
+    """
+    means = field_of(gaussians, "means")
+    ext_shape = getattr(extrinsics, "shape", None)
+    shape = getattr(means, "shape", None)
+    if shape is None or ext_shape is None or len(shape) != 3 or len(ext_shape) != 4:
+        return
+    b, gb = int(ext_shape[0]), int(shape[0])
+    if gb != b and b > 0 and gb % b == 0:
+        raise ClearsplatError(
+            f"{gb} batch items of Gaussians for {b} of cameras: {model} concatenated the "
+            f"Gaussians of {gb // b} depth predictions along the batch axis (a model in train "
+            f"mode with supervise_intermediate_depth); call model.eval(), or pass the final "
+            f"prediction, the last {b} items (means[-{b}:], ...)", field="gaussians")
+
+
 def _from_grid(gaussians, extrinsics, intrinsics, images, *, height, width, batch, spp, grid,
                allow_coarse, max_sh_degree, normalized_intrinsics, model,
                render_settings=None) -> Scene:
+    check_batch_concat(gaussians, extrinsics, model)
     cameras = cameras_from_model(extrinsics, intrinsics, batch=batch, height=height,
                                  width=width, normalized_intrinsics=normalized_intrinsics)
     means, cov, sh, op = native_arrays(gaussians, batch, max_sh_degree)
@@ -102,7 +126,9 @@ def from_depthsplat(gaussians, extrinsics, intrinsics, images=None, *, height: i
     ClearsplatError
         Naming the field: wrong shapes, ``G`` not a multiple of ``V * H * W`` (trimmed
         borders), opacities outside [0, 1] (logits), images outside [0, 1], non-rigid cameras,
-        covariances that are not positive semi-definite.
+        covariances that are not positive semi-definite, and Gaussians with ``k * B`` batch
+        items for ``B`` cameras (DepthSplat in train mode concatenates its intermediate-depth
+        Gaussians along the batch axis; call ``model.eval()`` or pass the last ``B`` items).
     """
     return _from_grid(gaussians, extrinsics, intrinsics, images, height=height, width=width,
                       batch=batch, spp=spp, grid=None, allow_coarse=False,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import keyword
 import sys
 
 from ..errors import ClearsplatError
@@ -18,8 +19,10 @@ from ._common import one_line, sigterm_as_interrupt
 
 __all__ = ["main", "build_parser", "COMMANDS"]
 
-#: The command modules, in the order ``clearsplat --help`` lists them.
-COMMANDS = ("demo", "filter", "view", "video", "render", "export", "bench")
+#: The commands, in the order ``clearsplat --help`` lists them; each is the module of that
+#: name (with a trailing underscore where the name is a Python keyword: ``import_``).
+COMMANDS = ("demo", "import", "filter", "view", "video", "render", "export", "batch", "bench",
+            "prepare", "eval")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -40,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"clearsplat {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        importlib.import_module(f"{__name__}.{name}").add_parser(sub)
+        module = f"{name}_" if keyword.iskeyword(name) else name
+        importlib.import_module(f"{__name__}.{module}").add_parser(sub)
     return p
 
 

@@ -25,6 +25,11 @@ def add_parser(sub) -> None:
                    help="skip the real-image check (Middlebury stereo pair with a pasted object)")
     b.add_argument("--ablation", action="store_true",
                    help="run the ablation of docs/method.md (clearsplat.bench.ABLATIONS)")
+    b.add_argument("--workers", type=int, metavar="N",
+                   help="run the grid's cells as Ray tasks on N local CPUs (default: one "
+                        "after another in this process)")
+    b.add_argument("--address", help="run the grid's cells on this Ray cluster ('auto', "
+                                     "HOST:PORT or ray://HOST:PORT)")
     b.add_argument("--out", default="bench-out", help="output folder (default: %(default)s)")
     b.add_argument("--force", action="store_true",
                    help="replace an --out folder that an earlier clearsplat run wrote")
@@ -88,6 +93,8 @@ def run(args) -> int:
     except ValueError:
         raise ClearsplatError("expected --resolution HxW and comma-separated integers for "
                               "--views and --seeds", field="--resolution/--views/--seeds") from None
+    if args.workers is not None and args.workers < 1:
+        raise ClearsplatError(f"must be at least 1, got {args.workers}", field="--workers")
     from ..io.output import check_output_folder, output_folder
     check_output_folder(args.out, force=args.force)
     check_dependencies(configs, real_check=not args.no_real_check)
@@ -97,7 +104,8 @@ def run(args) -> int:
         print("  " + s, file=sys.stderr)
 
     rows = run_suite(families=args.families.split(","), views=views, seeds=seeds,
-                     configs=configs, height=h, width=w, log=log)
+                     configs=configs, height=h, width=w, log=log, workers=args.workers,
+                     address=args.address)
     print(format_tables(rows))
     real = None
     if not args.no_real_check:

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import os
 import warnings
-
-import numpy as np
 
 from ..errors import ClearsplatError
 from ._common import Bar, add_config_args, config_from_args, warn
@@ -30,47 +26,8 @@ def add_parser(sub) -> None:
     f.set_defaults(func=run)
 
 
-def write_outputs(folder, scene, result, *, keep_all: bool = False, report: bool = False,
-                  source: str | None = None, located_at=None,
-                  copy_images: bool = False) -> None:
-    """Write what ``clearsplat filter`` writes into ``folder`` (an existing, empty folder).
-
-    With ``source`` (the input bundle) the folder is itself a bundle: ``cameras.json`` refers
-    to the input's images (or copies them, ``copy_images``) so that it loads again from
-    ``located_at`` (where ``folder`` is moved to; default ``folder``).
-    """
-    from ..io import load_cameras, save_bundle_cameras, write_ply
-
-    if keep_all:
-        kept = result.apply(scene)
-        write_ply(os.path.join(folder, "gaussians.ply"), kept.gaussians,
-                  view_id=kept.view_id, pixel_id=kept.pixel_id)
-    else:
-        sub = scene.subset(result.keep)
-        write_ply(os.path.join(folder, "gaussians.ply"), sub.gaussians,
-                  view_id=sub.view_id, pixel_id=sub.pixel_id)
-    np.save(os.path.join(folder, "removed.npy"), np.ascontiguousarray(result.removed, dtype=bool))
-    with open(os.path.join(folder, "summary.json"), "w") as f:
-        json.dump(result.summary(), f, indent=1)
-    if source is not None:
-        cameras, image_paths = load_cameras(source)
-        save_bundle_cameras(folder, cameras, image_paths, located_at=located_at,
-                            copy_images=copy_images, render=scene.render_settings)
-    if report:
-        from ..report import write_report
-        from ..video import make_video
-        os.makedirs(os.path.join(folder, "report"), exist_ok=True)
-        with warnings.catch_warnings(record=True) as caught:     # the GIF fallback's
-            warnings.simplefilter("always")
-            video = make_video(os.path.join(folder, "report", "video.mp4"), scene,
-                               result.keep, num_frames=48)
-        for w in caught:
-            warn(str(w.message))
-        write_report(os.path.join(folder, "report"), scene, result, source=source,
-                     video=video.name)
-
-
 def run(args) -> int:
+    from ..batch import write_filter_outputs
     from ..filter import filter_distractors
     from ..io import load_scene
     from ..io.output import check_output_folder, output_folder
@@ -94,9 +51,13 @@ def run(args) -> int:
             warn(message)
 
     with output_folder(args.out, inputs=[args.scene], force=args.force,
-                       command="filter") as tmp:
-        write_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
-                      source=args.scene, located_at=args.out, copy_images=args.copy_images)
+                       command="filter") as tmp, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")             # the video's GIF fallback
+        write_filter_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
+                             source=args.scene, located_at=args.out,
+                             copy_images=args.copy_images)
+    for w in caught:
+        warn(str(w.message))
     s = result.summary()
     print(f"removed {s['removed']:,} of {s['gaussians']:,} Gaussians "
           f"({s['accepted']} of {len(s['candidates'])} candidates); wrote {args.out}")

@@ -29,6 +29,7 @@ def run(args) -> int:
         raise ClearsplatError(f"must lie in 1..65535, got {args.port}", field="--port")
     if args.show in ("filtered", "removed") and not args.filtered:
         raise ClearsplatError(f"--show {args.show} needs --filtered", field="--show")
+    _check_host(args.host)
     scene, keep = load_scene_and_keep(args.scene, args.filtered)
     try:
         viewer = serve(scene, keep=keep, host=args.host, port=args.port, show=args.show)
@@ -42,3 +43,17 @@ def run(args) -> int:
             time.sleep(3600)
     finally:
         viewer.stop()
+
+
+def _check_host(host: str) -> None:
+    """Refuse an address this machine cannot serve on (viser would try port after port)."""
+    import socket
+
+    from ..errors import ClearsplatError
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)
+        with socket.socket(infos[0][0], socket.SOCK_STREAM) as s:
+            s.bind(infos[0][4])
+    except OSError as e:
+        raise ClearsplatError(f"cannot serve on {host!r} ({e.strerror or e})",
+                              field="--host") from None

@@ -1,21 +1,26 @@
 """Gaussians from the PLY exports of feed-forward models.
 
 Their ``export_ply`` functions write the vertex layout of 3DGS (``x y z nx ny nz f_dc_0..2
-[f_rest_*] opacity scale_0..2 rot_0..3``), but not always its meaning:
+[f_rest_*] opacity scale_0..2 rot_0..3``), but not always its meaning (upstream code read for
+each: ``docs/backbones.md``):
 
-- **opacity**: pixelSplat, MVSplat, DepthSplat, NoPoSplat and AnySplat write the opacity
-  itself (``opacities[..., None]``), not its logit; ReSplat and YoNoSplat write the logit.
+- **opacity**: pixelSplat, MVSplat, NoPoSplat, YoNoSplat and AnySplat write the opacity itself
+  (``opacities[..., None]``); DepthSplat and ReSplat write ``torch.logit`` of it, as 3DGS does.
   Reading a raw opacity as a logit turns 0.9 into 0.71 and every Gaussian semi-transparent.
-- **colour**: most write only the DC band (``harmonics[..., 0]``); some forks write plain RGB.
-- **frame**: pixelSplat/MVSplat/DepthSplat move the scene into a viewer frame (median
-  recentred, divided by the 95 % quantile, rotated by a fixed "+Z up" rotation times the first
-  view's world-to-camera rotation); ReSplat rotates by the middle view's world-to-camera
-  rotation; NoPoSplat/AnySplat keep the first-view frame. ``to_world`` undoes a known similarity.
-- **borders**: DepthSplat's and ReSplat's ``save_gaussian_ply`` can trim the image border
-  (``GAUSSIAN_TRIM``), so the pixel association of the layout is lost; none write ``view_id``.
+- **colour**: most write only the DC band (``harmonics[..., 0]``); ReSplat writes all bands,
+  NoPoSplat/YoNoSplat/AnySplat with ``save_sh_dc_only=False``; some forks write plain RGB.
+- **frame**: pixelSplat/MVSplat move the scene into a viewer frame (median recentred, divided
+  by the largest 95 % quantile, rotated by a fixed "+Z up" rotation times the first view's
+  world-to-camera rotation); DepthSplat rotates by the first view's world-to-camera rotation
+  and ReSplat by the middle view's (no translation); NoPoSplat/YoNoSplat/AnySplat keep the
+  first view's camera frame. ``to_world`` undoes a known similarity.
+- **rotations**: pixelSplat's visualizer, YoNoSplat and ReSplat write each Gaussian's
+  camera-frame rotation (the encoders' un-rotated ``rotations``), not its world rotation.
+- **order and borders**: several exports trim an image border and reorder the vertices
+  (``"h w spp v"``, view fastest); none write ``view_id``.
 
-:func:`read_export` reads such a file with the right options, or with a ``preset``. Details
-and sources: ``docs/backbones.md``.
+:func:`read_export` reads such a file's columns with the right options (or a ``preset``).
+:func:`clearsplat.io.importers.import_export` recovers the association and the world frame.
 """
 
 from __future__ import annotations
@@ -33,11 +38,11 @@ EXPORT_PRESETS = {
     "3dgs": {"opacity": "logit", "color": "sh"},
     "pixelsplat": {"opacity": "raw", "color": "sh"},
     "mvsplat": {"opacity": "raw", "color": "sh"},
-    "depthsplat": {"opacity": "raw", "color": "sh"},
+    "depthsplat": {"opacity": "logit", "color": "sh"},
     "noposplat": {"opacity": "raw", "color": "sh"},
     "anysplat": {"opacity": "raw", "color": "sh"},
     "resplat": {"opacity": "logit", "color": "sh"},
-    "yonosplat": {"opacity": "logit", "color": "sh"},
+    "yonosplat": {"opacity": "raw", "color": "sh"},
 }
 
 
