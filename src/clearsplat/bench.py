@@ -20,6 +20,7 @@ from .filter import FilterConfig, filter_distractors
 from .metrics import lpips, lpips_available, psnr, removal_stats, ssim
 from .render import render_batch
 from .synth import clean_reference, distractor_truth, make_world, reconstruct
+from .synth.realism import parse_realism, realistic_reconstruction
 
 __all__ = ["BenchCase", "ABLATIONS", "parse_config", "parse_value", "run_real_checks",
            "format_real_checks", "run_case", "run_cell", "run_suite", "format_tables",
@@ -39,6 +40,14 @@ ABLATIONS = {
     "single<tau2": "default+single_threshold=true",
     "single<tau1": "default+second_range=false",
     "no-verify": "default+verify=false",
+    # Options for real backbones (docs/method.md, "Real backbones"): the default's one off,
+    # the others on.
+    "no-refine-tol": "default+refine_tolerance=0",
+    "refine-tol=2": "default+refine_tolerance=2",
+    "+photo-align": "default+photometric_align=true",
+    "+depth-scale": "default+depth_scale_align=true",
+    "+verify-tol=2": "default+verify_tolerance=2",
+    "+rel-score=0.5": "default+min_relative_score=0.5",
 }
 
 
@@ -80,6 +89,7 @@ class BenchCase:
     height: int = 256
     width: int = 448
     configs: dict = field(default_factory=lambda: {"default": FilterConfig()})
+    realism: str = "plain"
 
 
 def _quality(scene, keep, cameras, images) -> dict:
@@ -105,24 +115,32 @@ def run_case(case: BenchCase, *, log: Callable[[str], None] = lambda s: None,
                        height=case.height, width=case.width)
     t_world = time.perf_counter() - t0
     t0 = time.perf_counter()
-    scene = reconstruct(world.cameras, world.images, world.depths, seed=case.seed)
-    t_recon = time.perf_counter() - t0
-    clean = clean_reference(world)
-    truth = distractor_truth(scene, world)
+    if parse_realism(case.realism):
+        scene, truth = realistic_reconstruction(world, case.realism, seed=case.seed)
+        t_recon = time.perf_counter() - t0
+        clean, _ = realistic_reconstruction(world, case.realism, seed=case.seed, clean=True)
+    else:  # the plain stand-in, exactly as before the realism scenarios
+        scene = reconstruct(world.cameras, world.images, world.depths, seed=case.seed)
+        t_recon = time.perf_counter() - t0
+        clean = clean_reference(world)
+        truth = distractor_truth(scene, world)
     base_q = _quality(scene, None, world.test_cameras, world.test_images)
     ref_q = _quality(clean, None, world.test_cameras, world.test_images)
+    # Removing exactly the distractor Gaussians: the gain a perfect filter would give.
+    exact_q = _quality(scene, ~truth, world.test_cameras, world.test_images)
     rows = []
     for name, cfg in case.configs.items():
-        log(f"{case.family} {case.num_views} views seed {case.seed}: {name}")
+        log(f"{_where(case)}: {name}")
         res = filter_distractors(scene, config=cfg, extractor=extractor)
         q = _quality(scene, res.keep, world.test_cameras, world.test_images)
         stats = removal_stats(res.removed, truth)
         clean_res = filter_distractors(clean, config=cfg, extractor=extractor)
         clean_q = _quality(clean, clean_res.keep, world.test_cameras, world.test_images)
         rows.append({
+            "realism": case.realism,
             "family": case.family, "views": case.num_views, "seed": case.seed, "config": name,
             "gaussians": len(scene),
-            "baseline": base_q, "filtered": q, "reference": ref_q,
+            "baseline": base_q, "filtered": q, "reference": ref_q, "exact": exact_q,
             "recall": stats["recall"], "other_removed": stats["static_removed"],
             "distractor_gaussians": int(truth.sum()),
             "candidates": len(res.candidates),
@@ -140,17 +158,21 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
               views: Sequence[int] = (4, 8, 16), seeds: Sequence[int] = (0,),
               configs: dict | None = None, height: int = 256, width: int = 448,
               log: Callable[[str], None] = lambda s: None, extractor=None,
+              realism: Sequence[str] = ("plain",),
               workers: int | None = None, address: str | None = None) -> list[dict]:
     """Run the benchmark grid; rows as returned by :func:`run_case`, in grid order.
 
-    With ``workers`` or ``address`` each cell (world, view count, seed) is a Ray task
+    ``realism`` lists the backbone scenarios (:data:`clearsplat.synth.realism.SCENARIOS`).
+    With ``workers`` or ``address`` each cell (scenario, world, view count, seed) is a Ray task
     (:mod:`clearsplat.batch`): ``workers`` CPUs of a local Ray instance started and stopped
     here, or the cluster at ``address``. Otherwise the cells run one after another in this
     process. The rows are the same either way; only the timings differ.
     """
     configs = configs or {"default": FilterConfig()}
-    cases = [BenchCase(family, v, seed, height, width, configs)
-             for family in families for v in views for seed in seeds]
+    for r in realism:
+        parse_realism(r)                 # fail on a bad name before any work
+    cases = [BenchCase(family, v, seed, height, width, configs, r)
+             for r in realism for family in families for v in views for seed in seeds]
     if workers is None and address is None:
         rows = []
         for case in cases:
@@ -161,11 +183,18 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
     with ray_cluster(address=address, num_cpus=workers) as ray:
         for i, result in run_tasks(ray, run_cell, [(c, extractor) for c in cases]):
             c = cases[i]
+            where = _where(c)
             if isinstance(result, TaskFailed):
-                raise RuntimeError(f"{c.family} {c.num_views} views seed {c.seed}: {result}")
+                raise RuntimeError(f"{where}: {result}")
             results[i] = result
-            log(f"{c.family} {c.num_views} views seed {c.seed}: done")
+            log(f"{where}: done")
     return [row for rows in results for row in rows]
+
+
+def _where(case: BenchCase) -> str:
+    """A cell's name in progress lines (the scenario only where it is not the plain one)."""
+    name = f"{case.family} {case.num_views} views seed {case.seed}"
+    return name if case.realism == "plain" else f"{case.realism} {name}"
 
 
 def run_cell(job: tuple) -> list[dict]:
@@ -213,16 +242,18 @@ def _fmt(v, spec):
 
 
 def aggregate(rows: list[dict]) -> list[dict]:
-    """Mean over seeds per (config, family, views)."""
+    """Mean over seeds per (realism, config, family, views)."""
     groups: dict = {}
     for r in rows:
-        groups.setdefault((r["config"], r["family"], r["views"]), []).append(r)
+        groups.setdefault((r.get("realism", "plain"), r["config"], r["family"], r["views"]),
+                          []).append(r)
     out = []
-    for (cfg, fam, v), rs in groups.items():
-        a = {"config": cfg, "family": fam, "views": v, "runs": len(rs)}
-        for part in ("baseline", "filtered", "reference", "clean_baseline", "clean_filtered"):
+    for (real, cfg, fam, v), rs in groups.items():
+        a = {"realism": real, "config": cfg, "family": fam, "views": v, "runs": len(rs)}
+        for part in ("baseline", "filtered", "reference", "exact", "clean_baseline",
+                     "clean_filtered"):
             for m in ("psnr", "ssim", "lpips"):
-                a[f"{part}_{m}"] = _mean(rs, lambda r: r[part][m])
+                a[f"{part}_{m}"] = _mean(rs, lambda r: r[part][m] if part in r else None)
         for k in ("recall", "other_removed", "clean_removed", "time_reconstruct",
                   "time_proposal", "time_verification", "candidates", "accepted", "gaussians"):
             a[k] = _mean(rs, lambda r: r[k])
@@ -231,35 +262,54 @@ def aggregate(rows: list[dict]) -> list[dict]:
 
 
 def format_tables(rows: list[dict]) -> str:
-    """The three tables (quality, clean-scene preservation, runtime) as text."""
+    """The three tables (quality, clean-scene preservation, runtime) as text.
+
+    A *scenario* column appears when some rows come from a realism scenario other than
+    ``"plain"``; *exact* is the PSNR gain of removing exactly the distractor Gaussians and
+    *of exact* the share of it the filter reaches."""
     agg = aggregate(rows)
+    with_real = any(a["realism"] != "plain" for a in agg)
+
+    cw = max([12] + [len(a["config"]) + 1 for a in agg])
+
+    def head(a=None):
+        if a is None:
+            return (f"{'scenario':<10}" if with_real else "") + \
+                f"{'config':<{cw}}{'family':<8}{'views':>5}"
+        return (f"{a['realism']:<10}" if with_real else "") + \
+            f"{a['config']:<{cw}}{a['family']:<8}{a['views']:>5}"
+
     lines = ["Quality on test views (mean over seeds); LPIPS n/a: no local weights",
-             f"{'config':<12}{'family':<8}{'views':>5}  {'PSNR base':>9} {'+filter':>8} "
-             f"{'gain':>6} {'ref':>6}  {'SSIM base':>9} {'+filter':>8} {'ref':>6}  "
+             f"{head()}  {'PSNR base':>9} {'+filter':>8} {'gain':>6} {'exact':>6} "
+             f"{'of exact':>8} {'ref':>6}  {'SSIM base':>9} {'+filter':>8} {'ref':>6}  "
              f"{'LPIPS':>6}  {'recall':>6} {'other':>6}"]
     for a in agg:
         gain = a["filtered_psnr"] - a["baseline_psnr"]
+        exact = None if a["exact_psnr"] is None else a["exact_psnr"] - a["baseline_psnr"]
+        share = None if not exact or exact <= 0 else 100 * gain / exact
         lines.append(
-            f"{a['config']:<12}{a['family']:<8}{a['views']:>5}  {a['baseline_psnr']:>9.2f} "
-            f"{a['filtered_psnr']:>8.2f} {gain:>+6.2f} {a['reference_psnr']:>6.2f}  "
+            f"{head(a)}  {a['baseline_psnr']:>9.2f} "
+            f"{a['filtered_psnr']:>8.2f} {gain:>+6.2f} {_fmt(exact, '+6.2f'):>6} "
+            f"{_fmt(share, '7.0f') + '%' if share is not None else 'n/a':>8} "
+            f"{a['reference_psnr']:>6.2f}  "
             f"{a['baseline_ssim']:>9.4f} {a['filtered_ssim']:>8.4f} {a['reference_ssim']:>6.4f}  "
             f"{_fmt(a['filtered_lpips'], '6.3f'):>6}  {a['recall']:>6.3f} "
             f"{100 * a['other_removed']:>5.2f}%")
     lines += ["", "Clean scenes (filter applied to the clean-input reconstruction)",
-              f"{'config':<12}{'family':<8}{'views':>5}  {'PSNR':>7} {'+filter':>8} "
+              f"{head()}  {'PSNR':>7} {'+filter':>8} "
               f"{'change':>7}  {'SSIM':>7} {'+filter':>8}  {'removed':>8}"]
     for a in agg:
         d = a["clean_filtered_psnr"] - a["clean_baseline_psnr"]
         lines.append(
-            f"{a['config']:<12}{a['family']:<8}{a['views']:>5}  {a['clean_baseline_psnr']:>7.2f} "
+            f"{head(a)}  {a['clean_baseline_psnr']:>7.2f} "
             f"{a['clean_filtered_psnr']:>8.2f} {d:>+7.3f}  {a['clean_baseline_ssim']:>7.4f} "
             f"{a['clean_filtered_ssim']:>8.4f}  {100 * a['clean_removed']:>7.3f}%")
     lines += ["", "Runtime (seconds, mean over seeds)",
-              f"{'config':<12}{'family':<8}{'views':>5}  {'Gaussians':>10} {'reconstruct':>11} "
+              f"{head()}  {'Gaussians':>10} {'reconstruct':>11} "
               f"{'proposal':>9} {'verification':>12} {'candidates':>10} {'accepted':>8}"]
     for a in agg:
         lines.append(
-            f"{a['config']:<12}{a['family']:<8}{a['views']:>5}  {a['gaussians']:>10.0f} "
+            f"{head(a)}  {a['gaussians']:>10.0f} "
             f"{a['time_reconstruct']:>11.2f} {a['time_proposal']:>9.2f} "
             f"{a['time_verification']:>12.2f} {a['candidates']:>10.1f} {a['accepted']:>8.1f}")
     return "\n".join(lines)
@@ -288,15 +338,22 @@ def write_outputs(rows: list[dict], out_dir: str | os.PathLike,
         import matplotlib.pyplot as plt
     except ImportError:
         return paths
-    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=120)
-    for (cfg, fam) in sorted({(a["config"], a["family"]) for a in agg}):
+    keys = sorted({(a["realism"], a["config"], a["family"]) for a in agg})
+    # Many series (realism scenarios): a wider figure with the legend beside the axes.
+    wide = len(keys) > 8
+    fig, ax = plt.subplots(figsize=(9, 4.5) if wide else (5, 3.2), dpi=120)
+    for (real, cfg, fam) in keys:
         pts = sorted((a["views"], a["filtered_psnr"] - a["baseline_psnr"]) for a in agg
-                     if a["config"] == cfg and a["family"] == fam)
-        ax.plot([v for v, _ in pts], [g for _, g in pts], marker="o", label=f"{cfg} / {fam}")
+                     if (a["realism"], a["config"], a["family"]) == (real, cfg, fam))
+        label = f"{cfg} / {fam}" if real == "plain" else f"{real} / {cfg} / {fam}"
+        ax.plot([v for v, _ in pts], [g for _, g in pts], marker="o", label=label)
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("input views")
     ax.set_ylabel("PSNR gain over baseline (dB)")
-    ax.legend(fontsize=7)
+    if wide:
+        ax.legend(fontsize=5, ncol=2, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    else:
+        ax.legend(fontsize=7)
     fig.tight_layout()
     p = os.path.join(out_dir, "gain.png")
     fig.savefig(p)

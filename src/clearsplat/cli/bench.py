@@ -21,6 +21,9 @@ def add_parser(sub) -> None:
     b.add_argument("--configs", help="comma-separated presets to compare, e.g. default,paper-local")
     b.add_argument("--config", action="append", metavar="LABEL=PRESET[+key=value...]",
                    help="a named config, e.g. no-refine=default+refine=none (repeatable)")
+    b.add_argument("--realism", default="plain",
+                   help="comma-separated backbone scenarios: plain, soft, depth, multi, exposure, "
+                        "pose, coarse, all (default: %(default)s; see clearsplat.synth.realism)")
     b.add_argument("--no-real-check", action="store_true",
                    help="skip the real-image check (Middlebury stereo pair with a pasted object)")
     b.add_argument("--ablation", action="store_true",
@@ -105,7 +108,8 @@ def run(args) -> int:
 
     rows = run_suite(families=args.families.split(","), views=views, seeds=seeds,
                      configs=configs, height=h, width=w, log=log, workers=args.workers,
-                     address=args.address)
+                     address=args.address,
+                     realism=[r.strip() for r in args.realism.split(",") if r.strip()])
     print(format_tables(rows))
     real = None
     if not args.no_real_check:

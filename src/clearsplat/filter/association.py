@@ -12,6 +12,10 @@ import numpy as np
 from ..render import PreparedView, contributions
 from ..scene import Scene
 
+#: With ``align_scale``: "in front" means beyond this many robust standard deviations of the
+#: view's depth ratio to the reference.
+_SPREAD_FACTOR = 2.5
+
 __all__ = [
     "ViewIndex", "region_gaussians", "member_pixels", "revealing_gaussians", "pixels_of",
     "verification_views", "dilate",
@@ -109,7 +113,9 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
 
 def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
                         margin: float, reference_rgbs: list[np.ndarray] | None = None,
-                        color_threshold: float | None = None) -> np.ndarray:
+                        color_threshold: float | None = None, images: list | None = None,
+                        align_scale: bool = False,
+                        reference_rgbs_hi: list[np.ndarray] | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -131,7 +137,19 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         With ``reference_rgbs``: a Gaussian also qualifies when its view's input colour differs
         from the reference colour at its pixel by more than this (L1 over RGB) and it does not
         lie behind the reference surface (it touches it: the foot of an object on the floor).
+    images : list of (H, W, 3) float, optional
+        The input colours for the colour test (default: ``scene.images``).
+    align_scale : bool
+        Divide each view's depths by their median ratio to the reference depth first, and widen
+        ``margin`` to 2.5 robust standard deviations of that ratio where the view's depth is
+        noisier (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own
+        depth scale and noise (``FilterConfig.depth_scale_align``).
+    reference_rgbs_hi : list of (H, W, 3) float, optional
+        Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
+        the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
     """
+    from .robust import view_depth_scales
+    images = scene.images if images is None else images
     out = np.zeros(len(scene), dtype=bool)
     for view, members in enumerate(index.members):
         if members.size == 0:
@@ -141,13 +159,24 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
-        front = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind)
+        view_margin = margin
+        if align_scale:
+            scale, spread = view_depth_scales([z], [behind])[0]
+            z = z / scale
+            # "In front" beyond this view's own depth noise, not only beyond the fixed margin.
+            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
         if color_threshold is not None and reference_rgbs is not None:
-            image = scene.images[view].reshape(-1, 3)
+            image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)
             differ = np.zeros(members.size, dtype=bool)
             with np.errstate(invalid="ignore"):
-                diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
+                if reference_rgbs_hi is None:
+                    diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
+                else:
+                    x = image[pix[valid]]
+                    hi = reference_rgbs_hi[view].reshape(-1, 3)[pix[valid]]
+                    diff = (np.maximum(ref[pix[valid]] - x, 0) + np.maximum(x - hi, 0)).sum(-1)
             differ[valid] = diff > color_threshold       # False where the reference is NaN
             front |= differ & (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
         out[members] = front

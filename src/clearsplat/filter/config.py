@@ -39,6 +39,8 @@ class FieldSpec:
         None is allowed too.
     test : callable or None
         For ``"text"``: returns True for an allowed string; ``what`` describes those strings.
+    also : tuple of str
+        Strings allowed besides the values of ``kind`` (e.g. ``"auto"`` for an integer).
     """
 
     kind: Literal["number", "integer", "bool", "choice", "text"]
@@ -50,6 +52,7 @@ class FieldSpec:
     optional: bool = False
     test: Callable[[str], bool] | None = None
     what: str = ""
+    also: tuple = ()
 
     def allowed(self) -> str:
         """What the field accepts, in words (used in error messages and docs)."""
@@ -71,6 +74,7 @@ class FieldSpec:
                 text = f"{noun} {'<' if self.high_open else '<='} {_num(hi)}"
             else:
                 text = "a finite number" if self.kind == "number" else noun
+        text += "".join(f" or {a!r}" for a in self.also)
         return text + (" or None" if self.optional else "")
 
     def check(self, name: str, value):
@@ -78,6 +82,8 @@ class FieldSpec:
         :class:`ClearsplatError` naming the field, the value and what is allowed."""
         if value is None and self.optional:
             return None
+        if isinstance(value, str) and value in self.also:
+            return value
         ok, out = False, value
         if self.kind == "bool":
             ok = isinstance(value, (bool, np.bool_))
@@ -193,6 +199,33 @@ class FilterConfig:
         GB the prepared input views may hold at once on the CPU (about 60 bytes per Gaussian
         each camera sees); views beyond it are prepared again when read, which costs time but
         never changes the output. None: no limit.
+    photometric_align : bool
+        Map each input image per channel (affine, robust fit) to the colours the other views
+        render there before the similarity, the colour test of ``refine_color`` and the
+        verification errors (:func:`clearsplat.filter.robust.photometric_alignment`): views that
+        differ in exposure or white balance then compare like with like. False: the paper.
+    depth_scale_align : bool
+        Judge "in front of the static surface" (``refine``) in each view's own depth scale: its
+        depths divided by their median ratio to the static reference first. False: the paper.
+    verify_tolerance : int
+        Radius in pixels: a verification error counts only the distance of a render colour to the
+        range of the input colours within this radius (0: the plain L1 error, the paper), so that
+        a small misregistration is evidence neither way.
+    refine_tolerance : int or "auto"
+        Radius in pixels of the misregistration the ``refine`` tests tolerate: a Gaussian is in
+        front of the static reference only if it is in front of the nearest surface the other
+        views render within this radius, and its colour differs only if it lies outside the range
+        of their colours there (:func:`clearsplat.filter.robust.tolerant_reference`). 0: the
+        tests at the Gaussian's own pixel. ``"auto"``: per view, the misregistration measured
+        between its input and its exclusion render
+        (:func:`clearsplat.filter.robust.misregistration`; 0 where the views agree).
+    min_relative_score : float
+        Also require each test's removal to take away more than this share of the
+        change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
+        :attr:`clearsplat.filter.verify.Partial.relative_score`). A distractor's removal
+        explains most of the error where it changes the render; static content that the views
+        merely place a little differently (pose error, depth scale) trades one error for another
+        and scores a small share even when its score is positive. 0: the paper.
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -223,6 +256,11 @@ class FilterConfig:
     num_threads: int | None = None
     view_memory: float | None = 2.0
     device: str = "cpu"
+    photometric_align: bool = False
+    depth_scale_align: bool = False
+    verify_tolerance: int = 0
+    refine_tolerance: int | str = "auto"
+    min_relative_score: float = 0.0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -309,6 +347,11 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "num_threads": FieldSpec("integer", 1, optional=True),
     "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
     "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
+    "photometric_align": FieldSpec("bool"),
+    "depth_scale_align": FieldSpec("bool"),
+    "verify_tolerance": FieldSpec("integer", 0),
+    "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
+    "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
 }
 
 
@@ -318,9 +361,13 @@ PRESETS = {
     # The paper's procedure exactly (DINOv3 features need a local checkpoint).
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
                           refine="none", verify_mask="proposals", verify_holes="count",
-                          min_score=0.0),
+                          min_score=0.0, photometric_align=False, depth_scale_align=False,
+                          verify_tolerance=0, refine_tolerance=0,
+                          min_relative_score=0.0),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
-                                min_score=0.0),
+                                min_score=0.0, photometric_align=False, depth_scale_align=False,
+                                verify_tolerance=0, refine_tolerance=0,
+                                min_relative_score=0.0),
 }

@@ -22,6 +22,8 @@ from .association import (ViewIndex, dilate, pixels_of, region_gaussians, reveal
                           verification_views)
 from .config import FilterConfig
 from .proposal import ViewProposal, propose_view
+from .robust import (misregistration, photometric_alignment, tolerant_images,
+                     tolerant_reference)
 from .verify import Partial, Verifier
 from .views import PreparedViews
 
@@ -246,7 +248,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                "can be verified, the scene is returned unchanged")
         warnings.warn(msg, stacklevel=2)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
-    sims = extractor.similarity(np.stack(scene.images), np.stack([r.rgb for r in excl]))
+    images = _aligned_images(scene, excl, config)
+    sims = extractor.similarity(np.stack(images), np.stack([r.rgb for r in excl]))
     lap("features")
     proposals: list[ViewProposal] = []
     for i in range(scene.num_views):
@@ -269,7 +272,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     revealing = None
     if config.refine == "depth":
         revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
-                                        margin=config.refine_margin)
+                                        margin=config.refine_margin,
+                                        align_scale=config.depth_scale_align)
     elif config.refine == "static-depth":
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
@@ -290,9 +294,19 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             # (the edge of what they see) mixes in the background and proves nothing.
             covered = static.alpha >= _COLOR_MIN_ALPHA
             reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
+        reference_hi = None
+        if config.refine_tolerance != 0:
+            radii = config.refine_tolerance
+            if radii == "auto":   # each view's measured misregistration with the others
+                radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
+                         for i in range(scene.num_views)]
+            reference, reference_rgb, reference_hi = tolerant_reference(
+                reference, reference_rgb, radii)
         revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                         reference_rgbs=reference_rgb,
-                                        color_threshold=config.refine_color)
+                                        color_threshold=config.refine_color, images=images,
+                                        align_scale=config.depth_scale_align,
+                                        reference_rgbs_hi=reference_hi)
     lap("refine")
 
     def refined(g: np.ndarray) -> np.ndarray:
@@ -312,9 +326,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     # -- verification -------------------------------------------------------------------------
     t0 = time.perf_counter()
     lap = _Laps(timings, "verification")
-    verifier = Verifier(views, scene.images, epsilon=config.epsilon,
+    lo, hi = _verification_images(images, config)
+    verifier = Verifier(views, lo, epsilon=config.epsilon,
                         incremental=incremental,
-                        hole_alpha=config.eta if _skip_holes(config, scene) else 0.0)
+                        hole_alpha=config.eta if _skip_holes(config, scene) else 0.0,
+                        images_hi=hi)
     support_px = [p.support_pixels for p in proposals]
 
     def expand(c: Candidate) -> np.ndarray:
@@ -353,6 +369,31 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         views.release()
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, config, stats=stats)
+
+
+def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:
+    """The input images the comparisons use: as given, or (``photometric_align``) mapped to
+    the colours of each view's exclusion render."""
+    if not config.photometric_align:
+        return scene.images
+    return [photometric_alignment(im, r.rgb, r.alpha) for im, r in zip(scene.images, excl)]
+
+
+def _verification_images(images: list, config: FilterConfig) -> tuple[list, list | None]:
+    """Lower and upper bounds of the input colours for verification (``verify_tolerance``);
+    the images themselves and None when the tolerance is 0."""
+    if config.verify_tolerance <= 0:
+        return images, None
+    bounds = [tolerant_images(im, config.verify_tolerance) for im in images]
+    return [b[0] for b in bounds], [b[1] for b in bounds]
+
+
+def _passes(total: Partial, config: FilterConfig) -> bool:
+    """A test's verdict: score above ``min_score`` and, where ``min_relative_score`` asks for
+    it, a large enough share of the error it touches explained by the removal."""
+    if not total.score > config.min_score:
+        return False
+    return config.min_relative_score <= 0 or total.relative_score > config.min_relative_score
 
 
 def _skip_holes(config: FilterConfig, scene: Scene) -> bool:
@@ -439,7 +480,7 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_coun
         if c.gaussians.size == 0:
             c.reason = ("no Gaussians in region" if config.refine == "none"
                         else "no Gaussians left: none survived refinement")
-        elif s > config.min_score:
+        elif _passes(totals[c.index], config):
             c.reason = "passed individual test"
         else:
             c.reason = "rejected by individual test"
@@ -463,7 +504,7 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
     for c in second:
         s = totals[c.index].score
         c.scores["additional"] = s
-        if s > config.min_score:
+        if _passes(totals[c.index], config):
             survivors.append(c)
         else:
             c.reason = "rejected by additional test"
@@ -498,7 +539,7 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
             (p,) = verifier.score_view(j, base_keep, base, [joint], q[j])
         total.add(p)
         report("joint", j + 1, scene.num_views)
-    ok = total.score > config.min_score
+    ok = _passes(total, config)
     for c in survivors:
         c.scores["joint"] = total.score
         c.accepted = ok

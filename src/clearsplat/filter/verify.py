@@ -32,10 +32,21 @@ class Partial:
 
     num: float = 0.0
     den: float = 0.0
+    #: Sum of ``w * E`` (the change-weighted error before the removal), for
+    #: :attr:`relative_score`.
+    err: float = 0.0
 
     def add(self, other: "Partial") -> None:
         self.num += other.num
         self.den += other.den
+        self.err += other.err
+
+    @property
+    def relative_score(self) -> float:
+        """The share of the change-weighted error before the removal that it takes away:
+        ``sum(w delta) / sum(w E)`` (0 when there is none). Near 1 for a removal that explains
+        what it touches (a distractor), near 0 where it only trades one error for another."""
+        return self.num / self.err if self.err > 0 else 0.0
 
     @property
     def score(self) -> float:
@@ -46,7 +57,7 @@ class Partial:
 def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: np.ndarray,
                           excluded: np.ndarray, epsilon: float,
                           removed_alpha: np.ndarray | None = None,
-                          min_alpha: float = 0.0) -> Partial:
+                          min_alpha: float = 0.0, image_hi: np.ndarray | None = None) -> Partial:
     """Sum of ``w * delta`` and ``w`` over the valid pixels of matching pixel arrays.
 
     Parameters
@@ -58,6 +69,10 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
     removed_alpha : (M,) float32, optional
         Accumulated opacity after the removal; pixels below ``min_alpha`` are holes that no
         remaining Gaussian explains, and are left out.
+    image_hi : (M, 3) float32, optional
+        With it, ``image`` and ``image_hi`` are per-channel lower and upper bounds of the input
+        (``FilterConfig.verify_tolerance``) and the error of a colour is its L1 distance to that
+        box (0 inside).
     """
     base = base_rgb.astype(np.float64)
     after = removed_rgb.astype(np.float64)
@@ -69,8 +84,21 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
     if not valid.any():
         return Partial()
     w = w[valid]
-    delta = np.abs(base[valid] - img[valid]).sum(-1) - np.abs(after[valid] - img[valid]).sum(-1)
-    return Partial(float(np.sum(w * delta)), float(np.sum(w)))
+    if image_hi is not None:
+        return _tolerant_terms(w, base[valid], after[valid], img[valid],
+                               image_hi[valid].astype(np.float64))
+    e_before = np.abs(base[valid] - img[valid]).sum(-1)
+    delta = e_before - np.abs(after[valid] - img[valid]).sum(-1)
+    return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
+
+
+def _tolerant_terms(w, base, after, lo, hi) -> Partial:
+    """``change_weighted_terms`` with the error measured to the box [lo, hi] per channel."""
+    def err(x):
+        return (np.maximum(lo - x, 0.0) + np.maximum(x - hi, 0.0)).sum(-1)
+    e_before = err(base)
+    delta = e_before - err(after)
+    return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
 
 
 def tile_pixels(view: PreparedView, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -102,12 +130,19 @@ class Verifier:
         The input images.
     epsilon : float
     incremental : bool
+    hole_alpha : float
+        Pixels whose accumulated opacity after a removal stays below this are left out.
+    images_hi : list of (H, W, 3) float32, optional
+        Upper bounds of the input colours; ``images`` are then the lower bounds.
     """
 
     def __init__(self, views: list[PreparedView], images: list[np.ndarray], *, epsilon: float,
-                 incremental: bool = True, hole_alpha: float = 0.0):
+                 incremental: bool = True, hole_alpha: float = 0.0,
+                 images_hi: list[np.ndarray] | None = None):
         self.views = views
         self.images = [im.reshape(-1, 3) for im in images]
+        # With upper bounds, ``images`` are the lower bounds of a tolerant error.
+        self.images_hi = None if images_hi is None else [im.reshape(-1, 3) for im in images_hi]
         self.epsilon = float(epsilon)
         self.incremental = incremental
         self.hole_alpha = float(hole_alpha)
@@ -124,7 +159,8 @@ class Verifier:
         return change_weighted_terms(base.rgb.reshape(-1, 3)[idx],
                                      after.rgb.reshape(-1, 3)[idx], self.images[j][idx],
                                      excluded.ravel()[idx], self.epsilon,
-                                     after.alpha.reshape(-1)[idx], self.hole_alpha)
+                                     after.alpha.reshape(-1)[idx], self.hole_alpha,
+                                     self._hi(j, idx))
 
     def score_view(self, j: int, base_keep: np.ndarray, base: RenderResult,
                    removals: list[np.ndarray], excluded: np.ndarray) -> list[Partial]:
@@ -156,12 +192,17 @@ class Verifier:
                 after = patch.rgb.reshape(-1, 3)[inside][order]
                 alpha = patch.alpha.reshape(-1)[inside][order]
                 out.append(change_weighted_terms(base_rgb[idx], after, self.images[j][idx],
-                                                 q[idx], self.epsilon, alpha, self.hole_alpha))
+                                                 q[idx], self.epsilon, alpha, self.hole_alpha,
+                                                 self._hi(j, idx)))
             return out
         for removal in removals:
             keep = base_keep.copy()
             keep[removal] = False
             r = self.views[j].render(keep=keep)
             out.append(change_weighted_terms(base_rgb, r.rgb.reshape(-1, 3), self.images[j], q,
-                                             self.epsilon, r.alpha.reshape(-1), self.hole_alpha))
+                                             self.epsilon, r.alpha.reshape(-1), self.hole_alpha,
+                                             self._hi(j, slice(None))))
         return out
+
+    def _hi(self, j: int, idx) -> np.ndarray | None:
+        return None if self.images_hi is None else self.images_hi[j][idx]

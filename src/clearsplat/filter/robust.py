@@ -1,0 +1,200 @@
+"""Options that make the filter hold on what real backbones predict.
+
+Real feed-forward predictions disagree between views in ways that are not distractors: the
+input images differ in exposure and white balance, each view's depth has its own scale, and
+estimated cameras are off by a fraction of a degree. Each function here undoes one of those
+before the paper's comparisons, and each is switched by a :class:`FilterConfig` field (off in
+the ``paper`` presets):
+
+- :func:`photometric_alignment` (``photometric_align``): a per-view, per-channel affine map that
+  brings the input image to the colours of what the other views render there; similarities,
+  colour tests and verification errors then compare like with like.
+- :func:`view_depth_scales` (``depth_scale_align``): the scale of each view's depths relative to
+  what the other views render, so that "in front of the static surface" is judged in the
+  view's own depth scale.
+- :func:`misregistration` and :func:`tolerant_reference` (``refine_tolerance``): how many
+  pixels a view's input and the other views' render are out of register, and the refinement's
+  static reference widened by that radius (nearest surface, range of colours), so that static
+  edges a few pixels off do not count as standing in front.
+- :func:`tolerant_images` (``verify_tolerance``): per pixel, the range of the input colours
+  within a small radius; a render colour inside that range counts as no error, so a small
+  misregistration (pose error, edge bleeding) does not count as evidence either way.
+- ``min_relative_score`` (in :mod:`clearsplat.filter.verify` and the pipeline): a test passes
+  only if the removal takes away a large enough share of the error it touches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
+           "tolerant_reference", "misregistration"]
+
+#: Pixels used for a fit need the render this opaque.
+_FIT_MIN_ALPHA = 0.9
+#: A shift counts as misregistration when it lowers the mismatch by this share.
+_SHIFT_GAIN = 0.1
+#: Fewer usable pixels than this and the map stays the identity.
+_FIT_MIN_PIXELS = 64
+
+
+def _fit_affine(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Robust fit of ``y ~ a * x + b``: least squares, then again on the best 60 %."""
+    keep = np.ones(x.size, dtype=bool)
+    a, b = 1.0, 0.0
+    for _ in range(3):
+        xs, ys = x[keep], y[keep]
+        var = xs.var()
+        if xs.size < _FIT_MIN_PIXELS or var < 1e-8:
+            return 1.0, 0.0
+        a = float(((xs - xs.mean()) * (ys - ys.mean())).mean() / var)
+        b = float(ys.mean() - a * xs.mean())
+        r = np.abs(y - (a * x + b))
+        keep = r <= np.quantile(r, 0.6)
+    return a, b
+
+
+def photometric_alignment(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray,
+                          *, ignore: np.ndarray | None = None) -> np.ndarray:
+    """``image`` mapped per channel to the colours of ``render_rgb``, (H, W, 3) float32.
+
+    Fits ``render ~ a_c * image + b_c`` per channel over the pixels where the render is opaque
+    (accumulated opacity >= 0.9) and not in ``ignore``, robustly (the worst 40 % of the pixels,
+    where the views disagree for other reasons, are left out of the final fit), and applies it
+    to the whole image. Gains outside [0.5, 2] are treated as a failed fit (identity).
+
+    Parameters
+    ----------
+    image : (H, W, 3) float
+        The input image of a view.
+    render_rgb, render_alpha : (H, W, 3), (H, W) float
+        A render of the same camera from the other views' Gaussians (R_i^-i).
+    ignore : (H, W) bool, optional
+        Pixels left out of the fit.
+    """
+    ok = render_alpha >= _FIT_MIN_ALPHA
+    if ignore is not None:
+        ok &= ~ignore
+    out = np.array(image, dtype=np.float32, copy=True)
+    if ok.sum() < _FIT_MIN_PIXELS:
+        return out
+    x = np.asarray(image, dtype=np.float64)[ok]
+    y = np.asarray(render_rgb, dtype=np.float64)[ok]
+    for c in range(3):
+        a, b = _fit_affine(x[:, c], y[:, c])
+        if 0.5 <= a <= 2.0:
+            out[..., c] = (a * out[..., c] + b).astype(np.float32)
+    return out
+
+
+def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.ndarray]
+                      ) -> list[tuple[float, float]]:
+    """Per view, the median ratio of its own depth to the reference depth at the same pixels,
+    and the spread of that ratio.
+
+    Parameters
+    ----------
+    own_depths : list of (M_i,) float
+        Camera-i depths of view i's Gaussians, at pixels where the reference is valid.
+    reference_depths : list of (M_i,) float
+        The reference depth (what the other views render) at those pixels, positive.
+
+    Returns
+    -------
+    list of (scale, spread)
+        ``scale = exp(median(log(own / reference)))`` and ``spread`` the robust standard
+        deviation (1.4826 times the median absolute deviation) of ``log(own / reference)``;
+        ``(1, 0)`` where nothing can be compared. Median and MAD ignore the minority of pixels
+        where a distractor stands in front.
+    """
+    out = []
+    for z, ref in zip(own_depths, reference_depths):
+        ok = (z > 0) & (ref > 0)
+        if ok.sum() < _FIT_MIN_PIXELS:
+            out.append((1.0, 0.0))
+            continue
+        r = np.log(z[ok] / ref[ok])
+        med = float(np.median(r))
+        out.append((float(np.exp(med)), float(1.4826 * np.median(np.abs(r - med)))))
+    return out
+
+
+def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel minimum and maximum of ``image`` over a (2r+1)^2 window, (H, W, 3) each."""
+    size = (2 * int(radius) + 1, 2 * int(radius) + 1, 1)
+    image = np.asarray(image, dtype=np.float32)
+    return (ndimage.minimum_filter(image, size=size, mode="nearest"),
+            ndimage.maximum_filter(image, size=size, mode="nearest"))
+
+
+def misregistration(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray, *,
+                    max_shift: int = 8) -> int:
+    """How many pixels ``image`` and a render of the same camera are out of register.
+
+    Finds the integer image shift (within ``max_shift`` pixels, searched at half resolution on
+    grey levels) that best matches the opaque part of the render (accumulated opacity >= 0.9)
+    to the image in mean absolute difference, and returns its Chebyshev length in pixels: 0
+    for views that agree (exact cameras), a few pixels where the cameras handed to the filter
+    are off (estimated poses) or a view's depth scale disagrees with the others'.
+    """
+    grey = np.asarray(image, np.float64).mean(-1)
+    ref = np.asarray(render_rgb, np.float64).mean(-1)
+    ok = np.asarray(render_alpha) >= _FIT_MIN_ALPHA
+    h, w = (grey.shape[0] // 2) * 2, (grey.shape[1] // 2) * 2
+
+    def half(a):
+        return a[:h, :w].reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3))
+    g, r, m = half(grey), half(ref), half(ok.astype(np.float64)) == 1.0
+    k = max(int(max_shift) // 2, 1)
+    if m[k:-k, k:-k].sum() < _FIT_MIN_PIXELS:
+        return 0
+    best, best_cost, zero_cost = (0, 0), np.inf, np.inf
+    core = (slice(k, g.shape[0] - k), slice(k, g.shape[1] - k))
+    gc = g[core]
+    for dy in range(-k, k + 1):
+        for dx in range(-k, k + 1):
+            sl = (slice(k + dy, g.shape[0] - k + dy), slice(k + dx, g.shape[1] - k + dx))
+            valid = m[sl]
+            cost = np.abs(gc - r[sl])[valid].mean()
+            if dy == 0 and dx == 0:
+                zero_cost = cost
+            if cost < best_cost:
+                best, best_cost = (dy, dx), cost
+    # No misregistration unless a shift explains the difference clearly better than none
+    # (parallax and disocclusions favour small shifts by a little on any pair of views).
+    if best_cost > (1.0 - _SHIFT_GAIN) * zero_cost:
+        return 0
+    return 2 * max(abs(best[0]), abs(best[1]))
+
+
+def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
+                       ) -> tuple[list, list, list]:
+    """The static reference of ``refine`` made tolerant to a misregistration of ``radius`` px
+    (one radius for every view, or a list with one per view; 0 leaves a view as it is).
+
+    Returns ``(depths, rgb_lo, rgb_hi)``: per view, the nearest reference depth within the
+    radius (a Gaussian is in front only if it is in front of every surface the other views show
+    nearby; 0 stays "nothing there" where the whole window is empty), and the per-channel range
+    of the reference colours within the radius (NaN where the pixel's own colour is NaN).
+    """
+    radii = [radius] * len(depths) if np.isscalar(radius) else list(radius)
+    out_d, out_lo, out_hi = [], [], []
+    for d, rgb, r in zip(depths, rgbs, radii):
+        if r <= 0:
+            out_d.append(d)
+            out_lo.append(rgb)
+            out_hi.append(rgb)
+            continue
+        size = 2 * int(r) + 1
+        far = np.where(d > 0, d, np.inf)
+        near = ndimage.minimum_filter(far, size=size, mode="nearest")
+        out_d.append(np.where(np.isfinite(near), near, 0.0))
+        missing = np.isnan(rgb)
+        lo = ndimage.minimum_filter(np.where(missing, np.inf, rgb), size=(size, size, 1),
+                                    mode="nearest")
+        hi = ndimage.maximum_filter(np.where(missing, -np.inf, rgb), size=(size, size, 1),
+                                    mode="nearest")
+        out_lo.append(np.where(missing, np.nan, lo))
+        out_hi.append(np.where(missing, np.nan, hi))
+    return out_d, out_lo, out_hi

@@ -1,0 +1,182 @@
+"""The filter's options for real backbones (clearsplat.filter.robust and where they plug in),
+each against a slow reference or a closed form, and the paper presets untouched by them."""
+
+import numpy as np
+import pytest
+
+from clearsplat import ClearsplatError
+from clearsplat.features import get_extractor
+from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter.association import ViewIndex, revealing_gaussians
+from clearsplat.filter.robust import (photometric_alignment, tolerant_images, tolerant_reference,
+                                      view_depth_scales)
+from clearsplat.filter.verify import Partial, change_weighted_terms
+from clearsplat.synth import make_world
+from clearsplat.synth.realism import realistic_reconstruction
+
+NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
+           refine_tolerance=2, min_relative_score=0.3)
+
+
+def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
+    rng = np.random.default_rng(0)
+    image = rng.uniform(0.1, 0.9, (40, 60, 3)).astype(np.float32)
+    a, b = np.array([1.1, 0.9, 1.05]), np.array([0.02, -0.03, 0.0])
+    render = (a * image + b).astype(np.float32)
+    render[:10, :20] = rng.uniform(0, 1, (10, 20, 3))        # a distractor: 8 % of the pixels
+    alpha = np.ones((40, 60), np.float32)
+    alpha[-5:] = 0.3                                          # not opaque: left out
+    render[-5:] = 0.0
+    out = photometric_alignment(image, render, alpha)
+    np.testing.assert_allclose(out, a * image + b, atol=2e-4)
+    # Too few opaque pixels: identity.
+    np.testing.assert_array_equal(photometric_alignment(image, render, alpha * 0), image)
+
+
+def test_view_depth_scales_is_the_median_ratio():
+    rng = np.random.default_rng(1)
+    ref = rng.uniform(1, 5, 1000)
+    z = 1.04 * ref * np.exp(0.005 * rng.standard_normal(1000))
+    z[:100] = 0.5 * ref[:100]                                  # distractors in front
+    ref2 = ref.copy()
+    ref2[100:200] = 0                                          # nothing rendered there
+    got = view_depth_scales([z, z, z[:10]], [ref, ref2, ref[:10]])
+    assert got[0][0] == pytest.approx(1.04, rel=2e-3) and got[1][0] == pytest.approx(1.04, rel=2e-3)
+    # spread: the log-normal noise's 0.005, not inflated by the 10 % in front
+    assert 0.004 < got[0][1] < 0.0065
+    assert got[2] == (1.0, 0.0)                                # too few pixels
+
+
+def test_tolerant_images_and_reference_against_brute_force():
+    rng = np.random.default_rng(2)
+    img = rng.uniform(0, 1, (9, 11, 3)).astype(np.float32)
+    depth = rng.uniform(1, 2, (9, 11))
+    depth[3:5, 4:7] = 0
+    depth[0, 0] = 0
+    rgb = rng.uniform(0, 1, (9, 11, 3))
+    rgb[6, 2] = np.nan
+    r = 1
+    lo, hi = tolerant_images(img, r)
+    (d,), (rlo,), (rhi,) = tolerant_reference([depth], [rgb], r)
+    for y in range(9):
+        for x in range(11):
+            ys, xs = slice(max(y - r, 0), y + r + 1), slice(max(x - r, 0), x + r + 1)
+            np.testing.assert_array_equal(lo[y, x], img[ys, xs].reshape(-1, 3).min(0))
+            np.testing.assert_array_equal(hi[y, x], img[ys, xs].reshape(-1, 3).max(0))
+            win = depth[ys, xs]
+            assert d[y, x] == (win[win > 0].min() if (win > 0).any() else 0)
+            if np.isnan(rgb[y, x]).any():
+                assert np.isnan(rlo[y, x]).all() and np.isnan(rhi[y, x]).all()
+            else:
+                c = rgb[ys, xs].reshape(-1, 3)
+                c = c[~np.isnan(c).any(1)]
+                np.testing.assert_array_equal(rlo[y, x], c.min(0))
+                np.testing.assert_array_equal(rhi[y, x], c.max(0))
+
+
+def test_tolerant_error_is_the_distance_to_the_box_and_equal_to_l1_for_a_point_box():
+    rng = np.random.default_rng(3)
+    base, after, img = (rng.uniform(0, 1, (50, 3)).astype(np.float32) for _ in range(3))
+    excluded = rng.uniform(size=50) < 0.2
+    plain = change_weighted_terms(base, after, img, excluded, 0.002)
+    point = change_weighted_terms(base, after, img, excluded, 0.002, image_hi=img)
+    assert point.num == pytest.approx(plain.num, rel=1e-12)
+    assert point.den == plain.den and point.err == pytest.approx(plain.err, rel=1e-12)
+    lo, hi = img - 0.1, img + 0.1
+    got = change_weighted_terms(base, after, lo, excluded, 0.002, image_hi=hi)
+    b, a = base.astype(np.float64), after.astype(np.float64)
+    w = np.abs(a - b).sum(1)
+    ok = (w > 0.002) & ~excluded
+
+    def dist(x):
+        return (np.maximum(lo - x, 0) + np.maximum(x - hi, 0)).sum(1)
+    assert got.num == pytest.approx(np.sum((w * (dist(b) - dist(a)))[ok]), rel=1e-9)
+    assert got.err == pytest.approx(np.sum((w * dist(b))[ok]), rel=1e-9)
+
+
+def test_relative_score_is_the_share_of_the_error_removed():
+    # One pixel: error 0.6 before, 0.15 after -> 75 % of it removed.
+    base = np.array([[0.6, 0.0, 0.0]], np.float32)
+    after = np.array([[0.15, 0.0, 0.0]], np.float32)
+    img = np.zeros((1, 3), np.float32)
+    p = change_weighted_terms(base, after, img, np.zeros(1, bool), 0.002)
+    assert p.relative_score == pytest.approx(0.75, rel=1e-6)
+    total = Partial()
+    total.add(p)
+    total.add(Partial(0.0, 1.0, 0.45))
+    # w = 0.45: num 0.45 * 0.45, err 0.45 * 0.6 (+ 0.45 from the second part)
+    assert total.relative_score == pytest.approx(0.2025 / 0.72, rel=1e-6)
+    assert Partial().relative_score == 0.0
+
+
+def test_depth_scale_alignment_undoes_a_view_scale_bias():
+    world = make_world("object", num_views=3, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
+    index = ViewIndex(scene)
+    # Reference: the true depths; view 0 predicted 6 % too near (all of it "in front").
+    means = scene.gaussians.means.copy()
+    v0 = scene.view_id == 0
+    cam = scene.cameras[0]
+    means[v0] = cam.position + (means[v0] - cam.position) * 0.94
+    scene.gaussians.means = means
+    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
+    plain = revealing_gaussians(scene, index, ref, margin=0.02)
+    aligned = revealing_gaussians(scene, index, ref, margin=0.02, align_scale=True)
+    assert plain[v0].mean() > 0.9
+    # after alignment view 0 looks like the unbiased views (depth-edge Gaussians only)
+    assert aligned[~v0].mean() < 0.1 and aligned[v0].mean() < aligned[~v0].mean() + 0.03
+
+
+def test_options_are_validated_and_off_in_the_paper_presets():
+    for name in ("paper", "paper-local"):
+        cfg = FilterConfig.preset(name)
+        assert not cfg.photometric_align and not cfg.depth_scale_align
+        assert cfg.verify_tolerance == 0 and cfg.refine_tolerance == 0
+        assert cfg.min_relative_score == 0.0
+    for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
+                       ("verify_tolerance", True), ("min_relative_score", 1.0),
+                       ("min_relative_score", -0.1)):
+        with pytest.raises(ClearsplatError) as e:
+            FilterConfig(**{field: bad})
+        assert e.value.field == field
+
+
+@pytest.fixture(scope="module")
+def soft_scene():
+    world = make_world("street", num_views=3, seed=1, height=48, width=80)
+    return realistic_reconstruction(world, "all", seed=1)
+
+
+def test_options_off_give_the_filter_without_them(soft_scene):
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
+               refine_tolerance=0, min_relative_score=0.0)
+    a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
+    b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
+                           extractor=ex)
+    np.testing.assert_array_equal(a.keep, b.keep)
+    assert [c.scores for c in a.candidates] == [c.scores for c in b.candidates]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("option", sorted(NEW))
+def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option):
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    base = filter_distractors(scene, config=FilterConfig(min_relative_score=0.0, verify_tolerance=0,
+                                                         refine_tolerance=0,
+                                                         depth_scale_align=False,
+                                                         photometric_align=False), extractor=ex)
+    res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
+                             extractor=ex)
+    assert res.keep.shape == base.keep.shape
+    if option == "min_relative_score":
+        # Stricter acceptance only: never removes anything the filter without it keeps...
+        # (the joint test pools other candidates, so compare accepted sets of range 1).
+        acc = {c.index for c in res.candidates if c.accepted and c.range == 1}
+        acc0 = {c.index for c in base.candidates if c.accepted and c.range == 1}
+        assert acc <= acc0
+        # ... and the same proposals and individual scores.
+        assert [c.scores.get("individual") for c in res.candidates] == \
+            [c.scores.get("individual") for c in base.candidates]
