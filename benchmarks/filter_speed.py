@@ -4,18 +4,27 @@ Usage::
 
     python benchmarks/filter_speed.py                       # 4, 8, 16 views at 256x448
     python benchmarks/filter_speed.py --views 8 --repeats 5 --full-repeats 1
+    python benchmarks/filter_speed.py --views 8,16,32 --resolution 128x224 --family street
+    python benchmarks/filter_speed.py --views 64 --repeats 1 --full-repeats 0   # dense capture
 
 Each view count runs in a fresh subprocess so that its peak resident memory is its own.
 Times are medians over ``--repeats`` runs of the default filter (incremental verification) and
 over ``--full-repeats`` runs of the same filter with ``incremental=False`` (whole images
 re-rendered for every candidate and view); both runs must produce identical output. *min-max*
 is the range of the incremental runs' totals, *first* the first of them (a fresh process: what
-a single ``clearsplat filter`` call sees, page faults of new memory included).
+a single ``clearsplat filter`` call sees, page faults of new memory included). *prepared* counts
+camera preparations per run (the number of views, plus views prepared again because they did
+not fit in ``--view-memory``), *skipped* the (view, pass) visits left out because the view sees
+none of the Gaussians concerned, *views GB* the most the prepared views held at once; *CPU s*
+the process CPU time of a run (median; with ``--threads 1`` a measure of the work done that a
+busy machine disturbs far less than wall-clock time).
+Full-render verification is skipped above 16 views (it re-renders every image per candidate).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -27,9 +36,10 @@ import time
 
 
 def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
-          family: str, seed: int) -> dict:
+          family: str, seed: int, view_memory: float | None, threads: int | None) -> dict:
     import numpy as np
 
+    from clearsplat._memory import estimate_filter_memory
     from clearsplat.features import get_extractor
     from clearsplat.filter import FilterConfig, filter_distractors
     from clearsplat.synth import make_world, reconstruct
@@ -39,14 +49,22 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
     t_recon = time.perf_counter() - t0
     extractor = get_extractor("local")
-    cfg = FilterConfig()
+    options = {f.name for f in dataclasses.fields(FilterConfig)}
+    cfg = FilterConfig(num_threads=threads,
+                       **({"view_memory": view_memory} if "view_memory" in options else {}))
+    if views > 16:
+        full_repeats = 0
 
     def run(config):
         # Keep what is reported, not the result: a caller holds one result at a time, and
         # holding all of them would make every run allocate fresh memory.
+        cpu0 = time.process_time()
         r = filter_distractors(scene, config=config, extractor=extractor)
+        cpu = time.process_time() - cpu0
         return {"timings": r.timings, "keep": r.keep, "candidates": len(r.candidates),
-                "accepted": sum(c.accepted for c in r.candidates)}
+                "accepted": sum(c.accepted for c in r.candidates),
+                "stats": getattr(r, "stats", {}),
+                "cpu": cpu}
 
     inc = [run(cfg) for _ in range(repeats)]
     full = [run(cfg.replace(incremental=False)) for _ in range(full_repeats)]
@@ -60,6 +78,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "reconstruct_s": t_recon,
         "proposal_s": med(inc, "proposal"), "verification_s": med(inc, "verification"),
         "total_s": med(inc, "total"),
+        "cpu_s": statistics.median(r["cpu"] for r in inc),
         # The first run of the process: what one `clearsplat filter` call sees (fresh memory).
         "first_total_s": inc[0]["timings"]["total"],
         "range_total_s": [min(r["timings"]["total"] for r in inc),
@@ -68,6 +87,14 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "accepted": inc[0]["accepted"],
         "identical_output": bool(same),
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+        "views_prepared": inc[0]["stats"].get("views_prepared", 0),
+        "views_skipped": inc[0]["stats"].get("views_skipped", 0),
+        "views_peak_gb": inc[0]["stats"].get("views_peak_bytes", 0) / 1e9,
+        "view_memory": view_memory,
+        "memory_estimate_gb": estimate_filter_memory(
+            len(scene), scene.cameras,
+            **({"view_budget": None if view_memory is None else int(view_memory * 1e9)}
+               if "view_memory" in options else {})) / 1e9,
     }
     out["steps"] = {k: med(inc, k) for k in inc[0]["timings"] if "." in k}
     if full:
@@ -85,13 +112,17 @@ def main(argv=None) -> int:
                    help="runs with full re-rendering (0 to skip; slow at 16 views)")
     p.add_argument("--family", default="object")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--view-memory", default="2.0",
+                   help="FilterConfig.view_memory in GB, or 'none' (default 2.0, the default)")
+    p.add_argument("--threads", type=int, help="FilterConfig.num_threads (default: all cores)")
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     h, w = (int(x) for x in args.resolution.lower().split("x"))
+    view_memory = None if args.view_memory.lower() == "none" else float(args.view_memory)
     if args._child:
         row = _case(int(args._child), h, w, args.repeats, args.full_repeats, args.family,
-                    args.seed)
+                    args.seed, view_memory, args.threads)
         print(json.dumps(row))
         return 0
     rows = []
@@ -99,13 +130,16 @@ def main(argv=None) -> int:
         cmd = [sys.executable, os.path.abspath(__file__), "--_child", str(v),
                "--resolution", args.resolution, "--repeats", str(args.repeats),
                "--full-repeats", str(args.full_repeats), "--family", args.family,
-               "--seed", str(args.seed)]
+               "--seed", str(args.seed), "--view-memory", args.view_memory]
+        if args.threads:
+            cmd += ["--threads", str(args.threads)]
         res = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
         print(f"  done: {v} views", file=sys.stderr)
     print(f"clearsplat filter speed — {args.family} scenes at {w}x{h}, "
-          f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}; "
-          f"medians of {args.repeats} (incremental) / {args.full_repeats} (full) runs")
+          f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
+          f"{os.getloadavg()[0]:.1f}; medians of {args.repeats} (incremental) / "
+          f"{args.full_repeats} (full) runs; view_memory {args.view_memory} GB")
     hdr = (f"{'views':>5} {'Gaussians':>10} {'cands':>6} {'proposal s':>10} {'verify s':>9} "
            f"{'total s':>8} {'min-max':>11} {'first':>6} {'full verify s':>13} {'speedup':>8} {'peak RSS GB':>11} "
            f"{'same output':>11}")
@@ -118,7 +152,17 @@ def main(argv=None) -> int:
               f"{('%.2f' % full) if full else 'n/a':>13} "
               f"{('%.1fx' % r['speedup']) if full else 'n/a':>8} {r['peak_rss_gb']:>11.2f} "
               f"{str(r['identical_output']):>11}")
-    steps = list(rows[0]["steps"])
+    base = next((r for r in rows if r["views"] == 8), rows[0])
+    print(f"\n{'views':>5} {'CPU s':>7} {'x CPU':>6} {'x time':>7} {'x peak':>7} "
+          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'estimate GB':>12}   "
+          f"(x: against {base['views']} views)")
+    for r in rows:
+        print(f"{r['views']:>5} {r['cpu_s']:>7.2f} {r['cpu_s'] / base['cpu_s']:>6.2f} "
+              f"{r['total_s'] / base['total_s']:>7.2f} "
+              f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
+              f"{r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} "
+              f"{r['memory_estimate_gb']:>12.2f}")
+    steps = list(dict.fromkeys(k for r in rows for k in r["steps"]))
     print("\nwhere the time goes (seconds, medians):")
     print(f"{'step':<32}" + "".join(f"{str(r['views']) + ' views':>10}" for r in rows))
     for k in steps:

@@ -3,12 +3,14 @@
 The filter's footprint was read off the native rasterizer and measured (``docs/errors.md``,
 "memory"): per camera, a :class:`~clearsplat.render.PreparedView` holds a 60-byte record per
 visible Gaussian (``Splat`` 48 B, ``Rect`` 8 B, index 4 B, ``cpp/raster.h``) plus one int32 per
-(tile, Gaussian) pair, and the filter adds a Gaussian-to-visible map (int32) and an own-view
-mask (bool) per view; per input pixel it keeps the image, the full and exclusion renders,
-features, similarity maps, proposal masks and verification buffers; per Gaussian the
-projection scratch (76 B, ``cpp/project.cpp``) and a few masks. The constants below make the
-estimate 5 to 15 % above the measured peak on the synthetic scenes (0.23 to 0.92 million
-Gaussians, 4 and 8 views).
+(tile, Gaussian) pair and a Gaussian-to-visible map (int32); the filter holds at once only the
+prepared views that fit in ``FilterConfig.view_memory`` (plus the one being read and the one
+being prepared) and keeps an
+own-view mask (bool) and a packed visibility bit per view. Per input pixel it keeps the image,
+the full and exclusion renders, features, similarity maps, proposal masks and verification
+buffers; per Gaussian the projection scratch (76 B, ``cpp/project.cpp``) and a few masks. The
+constants below make the estimate 5 to 15 % above the measured peak on the synthetic scenes
+(0.23 to 0.92 million Gaussians, 4 and 8 views).
 """
 
 from __future__ import annotations
@@ -25,8 +27,11 @@ __all__ = ["estimate_filter_memory", "estimate_read_memory", "available_memory",
 PER_VISIBLE = 60
 #: Bytes per (tile, Gaussian) pair in a PreparedView's tile lists (int32).
 PER_PAIR = 4
-#: Further bytes per Gaussian per view: Gaussian -> visible id map (int32) and own mask (bool).
-PER_GAUSSIAN_VIEW = 5
+#: Bytes per Gaussian in a PreparedView once it maps Gaussians to visible ids (int32).
+PER_GAUSSIAN_PREPARED = 4
+#: Further bytes per Gaussian per view that the filter keeps for every view, prepared or not:
+#: own mask (bool) and a packed visibility bit.
+PER_GAUSSIAN_VIEW = 1.125
 #: Bytes per Gaussian once: projection scratch (76 B) and the filter's masks.
 PER_GAUSSIAN = 100
 #: Bytes per input pixel: image, renders, features, maps and verification buffers (measured).
@@ -42,7 +47,8 @@ ENV_SWITCH = "CLEARSPLAT_MEMORY_CHECK"
 
 def estimate_filter_memory(num_gaussians: int, cameras: Sequence, *,
                            tiles_per_gaussian: float = 2.0,
-                           visible_fraction: float = 1.0) -> int:
+                           visible_fraction: float = 1.0,
+                           view_budget: int | None = None) -> int:
     """Bytes :func:`clearsplat.filter_distractors` needs beyond the loaded scene.
 
     Parameters
@@ -56,6 +62,9 @@ def estimate_filter_memory(num_gaussians: int, cameras: Sequence, *,
         splats of trained scenes cover more).
     visible_fraction : float, default 1.0
         Share of the Gaussians that survive culling in a view (1: every one, an upper bound).
+    view_budget : int, optional
+        Bytes the prepared views may hold at once (``FilterConfig.view_memory``); the filter
+        then keeps views up to it, plus the one being read and the one being prepared.
 
     Returns
     -------
@@ -65,9 +74,12 @@ def estimate_filter_memory(num_gaussians: int, cameras: Sequence, *,
     n = max(int(num_gaussians), 0)
     views = len(cameras)
     pixels = sum(int(c.width) * int(c.height) for c in cameras)
-    per_view = n * (visible_fraction * (PER_VISIBLE + PER_PAIR * tiles_per_gaussian)
-                    + PER_GAUSSIAN_VIEW)
-    return int(views * per_view + n * PER_GAUSSIAN + pixels * PER_PIXEL)
+    prepared = n * (visible_fraction * (PER_VISIBLE + PER_PAIR * tiles_per_gaussian)
+                    + PER_GAUSSIAN_PREPARED)
+    held = views * prepared
+    if view_budget is not None:
+        held = min(held, int(view_budget) + 2 * prepared)
+    return int(held + views * n * PER_GAUSSIAN_VIEW + n * PER_GAUSSIAN + pixels * PER_PIXEL)
 
 
 def estimate_read_memory(file_size: int, *, ascii: bool = False) -> int:

@@ -40,10 +40,11 @@ class Bar:
 
 def config_from_args(args):
     """The :class:`~clearsplat.FilterConfig` that ``--preset``, ``--features``, ``--set`` name."""
-    from ..bench import parse_value
     from ..filter import FilterConfig
 
     overrides = {}
+    if args.set:
+        from ..bench import parse_value
     for item in args.set or []:
         if "=" not in item:
             raise ClearsplatError(f"expected KEY=VALUE, got {item!r}", field="--set")

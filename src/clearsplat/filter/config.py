@@ -195,6 +195,10 @@ class FilterConfig:
         images (slow reference path).
     num_threads : int or None
         Threads of the native rasterizer (None: all cores).
+    view_memory : float or None
+        GB the prepared input views may hold at once on the CPU (about 60 bytes per Gaussian
+        each camera sees); views beyond it are prepared again when read, which costs time but
+        never changes the output. None: no limit.
     photometric_align : bool
         Map each input image per channel (affine, robust fit) to the colours the other views
         render there before the similarity, the colour test of ``refine_color`` and the
@@ -250,6 +254,7 @@ class FilterConfig:
     association_min_weight: float = 0.05
     incremental: bool = True
     num_threads: int | None = None
+    view_memory: float | None = 2.0
     device: str = "cpu"
     photometric_align: bool = False
     depth_scale_align: bool = False
@@ -340,6 +345,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "association_min_weight": _unit(low_open=True),
     "incremental": FieldSpec("bool"),
     "num_threads": FieldSpec("integer", 1, optional=True),
+    "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
     "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
     "photometric_align": FieldSpec("bool"),
     "depth_scale_align": FieldSpec("bool"),

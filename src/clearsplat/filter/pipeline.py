@@ -25,6 +25,7 @@ from .proposal import ViewProposal, propose_view
 from .robust import (misregistration, photometric_alignment, tolerant_images,
                      tolerant_reference)
 from .verify import Partial, Verifier
+from .views import PreparedViews
 
 __all__ = ["Candidate", "FilterResult", "filter_distractors"]
 
@@ -108,6 +109,11 @@ class FilterResult:
         Seconds per stage.
     config : FilterConfig
     warnings : list of str
+    stats : dict
+        ``views_prepared``: camera preparations made (the number of views, plus those prepared
+        again under ``config.view_memory``); ``views_peak_bytes``: most bytes the prepared
+        views held at once; ``views_skipped``: (view, removal) pairs left out because the view
+        sees none of the removal's Gaussians (CPU only).
     """
 
     keep: np.ndarray
@@ -116,6 +122,7 @@ class FilterResult:
     timings: dict
     config: FilterConfig
     warnings: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
 
     def __repr__(self) -> str:
         accepted = sum(c.accepted for c in self.candidates)
@@ -191,8 +198,12 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         warnings.warn(msg, stacklevel=2)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
     on_gpu = config.device != "cpu"
+    # Tile patches are a CPU feature: on a GPU every verification render is a whole image.
+    # The incremental path also leaves out the views a removal cannot change.
+    incremental = config.incremental and not on_gpu
+    budget = None if config.view_memory is None else int(config.view_memory * 1e9)
     if not on_gpu:  # the GPU path holds only images and masks on the host
-        check_memory(estimate_filter_memory(n, scene.cameras))
+        check_memory(estimate_filter_memory(n, scene.cameras, view_budget=budget))
     report = progress or (lambda stage, done, total: None)
     if extractor is None:
         # Only the DINO extractors take a checkpoint; the others ignore a global --checkpoint.
@@ -208,20 +219,31 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     lap = _Laps(timings, "proposal")
     index = ViewIndex(scene)
     own = [index.mask(i, n) for i in range(scene.num_views)]
-    views, full, excl = [], [], []
+    full, excl = [], []
     if on_gpu:  # one upload of the Gaussians, shared by the views
         from ..render.gsplat import prepare_gsplat_views
-        gpu_views = prepare_gsplat_views(scene, scene.cameras, device=config.device)
-    for i, cam in enumerate(scene.cameras):
-        pv = gpu_views[i] if on_gpu else prepare(scene, cam, num_threads=threads)
-        views.append(pv)
+        views = prepare_gsplat_views(scene, scene.cameras, device=config.device)
+    else:
+        views = PreparedViews(n, scene.cameras,
+                              lambda i: prepare(scene, scene.cameras[i], num_threads=threads),
+                              budget=budget)
+    # Per view j, how many centres of each view's Gaussians it sees inside its image (for the
+    # choice of verification views), counted while the view is at hand.
+    seen_counts = np.zeros((scene.num_views, scene.num_views), dtype=np.int64)
+    any_visible = False
+    for i in range(scene.num_views):
+        pv = views[i]
         lap("prepare")
+        any_visible |= pv.num_visible > 0
+        if not on_gpu:
+            seen_counts[i] = np.bincount(scene.view_id[pv.centres_inside()],
+                                         minlength=scene.num_views)
         r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
         full.append(r_full)
         excl.append(r_excl)
         lap("exclusion_renders")
         report("render", i + 1, scene.num_views)
-    if not any(pv.num_visible for pv in views):
+    if not any_visible:
         msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
                "can be verified, the scene is returned unchanged")
         warnings.warn(msg, stacklevel=2)
@@ -236,10 +258,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             tau1=tau1, tau2=tau2, second_range=config.second_range,
             single_threshold=config.single_threshold))
         proposals[-1].exclusion = excl[i].rgb
+    # Pixel-aligned views map regions through pixel ids and need no prepared view.
+    loose = [bool((p < 0).any()) for p in index.pixels]
+
     def region_to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         return region_gaussians(scene, view, pixels, index=index,
                                 min_weight=config.association_min_weight,
-                                prepared=views[view])
+                                prepared=views[view] if loose[view] else None)
 
     regions = [r for prop in proposals for r in prop.regions]
     raw = [region_to_gaussians(r.view, r.pixels) for r in regions]
@@ -255,8 +280,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             proposed[g] = True
         reference, reference_rgb = [], []
         for i in range(scene.num_views):
-            static = views[i].rerender(excl[i], keep=~(own[i] | proposed),
-                                       tiles=views[i].tiles_touched(proposed & ~own[i]))
+            others = proposed & ~own[i]
+            if _sees(views, i, others, incremental):
+                pv = views[i]
+                static = pv.rerender(excl[i], keep=~(own[i] | proposed),
+                                     tiles=pv.tiles_touched(others))
+            else:   # nothing proposed in this view: the reference is R_i^-i itself
+                static = excl[i]
             # Where the proposals of the other views leave a hole, fall back to R_i^-i.
             solid = static.alpha > _STATIC_MIN_ALPHA
             reference.append(np.where(solid, static.depth, excl[i].depth))
@@ -296,8 +326,6 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     # -- verification -------------------------------------------------------------------------
     t0 = time.perf_counter()
     lap = _Laps(timings, "verification")
-    # Tile patches are a CPU feature: on a GPU every verification render is a whole image.
-    incremental = config.incremental and not on_gpu
     lo, hi = _verification_images(images, config)
     verifier = Verifier(views, lo, epsilon=config.epsilon,
                         incremental=incremental,
@@ -314,8 +342,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             c.accepted, c.reason = True, "accepted without verification"
     else:
         q = {1: _exclusion_masks(proposals, 1), 2: _exclusion_masks(proposals, 2)}
-        _individual_tests(scene, candidates, q, verifier, full, excl, own, index, config,
-                          report)
+        _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_counts,
+                          config, report)
         lap("individual")
         passed = [c for c in candidates if c.reason == "passed individual test"]
         for c in passed:
@@ -334,8 +362,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         if c.accepted and c.expanded is not None:
             keep[c.expanded] = False
     timings["verification"] = time.perf_counter() - t0
+    stats = {}
+    if isinstance(views, PreparedViews):
+        stats = {"views_prepared": views.prepared, "views_peak_bytes": views.peak_bytes,
+                 "views_skipped": views.skipped}
+        views.release()
     timings["total"] = timings["proposal"] + timings["verification"]
-    return FilterResult(keep, candidates, proposals, timings, config)
+    return FilterResult(keep, candidates, proposals, timings, config, stats=stats)
 
 
 def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:
@@ -380,14 +413,43 @@ def _exclusion_masks(proposals, rng: int) -> list[np.ndarray]:
     return out
 
 
-def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, config, report):
+def _sees(views, j: int, gaussians, skip: bool = True) -> bool:
+    """Whether view ``j`` can be changed by removing ``gaussians`` (int indices or (N,) bool):
+    False only when its camera sees none of them (then every score term there is 0 and the
+    view is left out without being prepared). Always True without ``skip`` (the full-render
+    reference path visits every view) and on the GPU."""
+    if not skip or not isinstance(views, PreparedViews):
+        return True
+    g = np.asarray(gaussians)
+    if views.sees_any(j, np.flatnonzero(g) if g.dtype == np.bool_ else g):
+        return True
+    views.skipped += 1
+    return False
+
+
+def _top_views(seen_counts: np.ndarray, view: int, count: int) -> list[int]:
+    """The ``count`` other views that see the most centres of ``view``'s Gaussians inside
+    their image (ties to the lower index): :func:`verification_views` from the counts the
+    exclusion renders made."""
+    others = [j for j in range(seen_counts.shape[0]) if j != view]
+    ranked = sorted((-int(seen_counts[j, view]), j) for j in others)
+    return [j for _, j in ranked[:count]]
+
+
+def _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_counts, config,
+                      report):
     """Score every candidate on its verification views; mark those with a positive score.
 
     ``q[r][j]`` is the exclusion mask of view j for candidates of range r."""
-    inside = [pv.centres_inside() for pv in verifier.views]
-    views_of = {i: verification_views(scene, i, config.num_verify_views, index=index,
-                                      inside=inside)
-                for i in range(scene.num_views)}
+    if isinstance(verifier.views, PreparedViews):
+        views_of = {i: _top_views(seen_counts, i, config.num_verify_views)
+                    for i in range(scene.num_views)}
+    else:
+        index = ViewIndex(scene)
+        inside = [pv.centres_inside() for pv in verifier.views]
+        views_of = {i: verification_views(scene, i, config.num_verify_views, index=index,
+                                          inside=inside)
+                    for i in range(scene.num_views)}
     n = len(scene)
     all_keep = np.ones(n, dtype=bool)
     totals = {c.index: Partial() for c in candidates}
@@ -395,8 +457,11 @@ def _individual_tests(scene, candidates, q, verifier, full, excl, own, index, co
         c.verify_views = views_of[c.view]
     # Batch per verifying view: every candidate that view j verifies, in one native call.
     for j in range(scene.num_views):
-        todo = [c for c in candidates if j in c.verify_views and c.gaussians.size]
+        # Candidates that view j does not see score 0 there: left out (and the view with them).
+        todo = [c for c in candidates if j in c.verify_views and c.gaussians.size
+                and _sees(verifier.views, j, c.gaussians, verifier.incremental)]
         if not todo:
+            report("individual", j + 1, scene.num_views)
             continue
         if config.verify_base == "full":
             base_keep, base = all_keep, full[j]
@@ -426,8 +491,13 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
     view j's exclusion mask M_j^1 | M_j^2 (and its unreliable pixels)."""
     totals = {c.index: Partial() for c in second}
     for j in range(scene.num_views):
-        parts = verifier.score_view(j, ~own[j], excl[j], [c.expanded for c in second], q[j])
-        for c, p in zip(second, parts):
+        # Candidates that view j does not see score 0 there: left out (and the view with them).
+        todo = [c for c in second if _sees(verifier.views, j, c.expanded, verifier.incremental)]
+        if not todo:
+            report("additional", j + 1, scene.num_views)
+            continue
+        parts = verifier.score_view(j, ~own[j], excl[j], [c.expanded for c in todo], q[j])
+        for c, p in zip(todo, parts):
             totals[c.index].add(p)
         report("additional", j + 1, scene.num_views)
     survivors = []
@@ -448,7 +518,11 @@ def _second_range_tests(scene, first, second, q, verifier, full, excl, own, conf
     jointly = np.zeros(n, dtype=bool)
     jointly[joint] = True
     total = Partial()
-    for j, pv in enumerate(verifier.views):
+    for j in range(scene.num_views):
+        if not _sees(verifier.views, j, joint, verifier.incremental):
+            report("joint", j + 1, scene.num_views)        # every term would be 0
+            continue
+        pv = verifier.views[j]
         if config.joint_base == "full":
             base_keep, start = ~removed_first, full[j]
         else:

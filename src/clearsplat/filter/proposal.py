@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from ..features import upsample_nearest
 
@@ -19,8 +18,6 @@ __all__ = [
     "ViewProposal", "Region", "cell_index_map", "patch_means", "support_condition",
     "proposal_ranges", "connected_regions", "propose_view",
 ]
-
-_EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 
 
 @dataclass(eq=False)
@@ -151,8 +148,41 @@ def proposal_ranges(similarity: np.ndarray, support: np.ndarray, *, tau1: float,
 
 def connected_regions(ranges: np.ndarray, which: int) -> list[np.ndarray]:
     """8-connected components of ``ranges == which``, as (h, w) bool masks, in label order."""
-    labels, count = ndimage.label(ranges == which, structure=_EIGHT_CONNECTED)
+    labels, count = label8(ranges == which)
     return [labels == k for k in range(1, count + 1)]
+
+
+def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """8-connected components of a (h, w) bool mask: labels 1..count (0 outside), numbered
+    in the order of each component's first pixel in row-major order.
+
+    The numbering of ``scipy.ndimage.label`` with a 3x3 structure, without importing SciPy
+    (the masks are proposal grids of a few thousand cells).
+    """
+    h, w = mask.shape
+    labels = np.zeros((h, w), dtype=np.int32)
+    fg = mask.tolist()
+    lab = [[0] * w for _ in range(h)]
+    count = 0
+    for y0, x0 in zip(*np.nonzero(mask)):
+        y0, x0 = int(y0), int(x0)
+        if lab[y0][x0]:
+            continue
+        count += 1
+        lab[y0][x0] = count
+        stack = [(y0, x0)]
+        while stack:
+            y, x = stack.pop()
+            for yy in (y - 1, y, y + 1):
+                if 0 <= yy < h:
+                    row_fg, row_lab = fg[yy], lab[yy]
+                    for xx in (x - 1, x, x + 1):
+                        if 0 <= xx < w and row_fg[xx] and not row_lab[xx]:
+                            row_lab[xx] = count
+                            stack.append((yy, xx))
+    if count:
+        labels[...] = lab
+    return labels, count
 
 
 def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,

@@ -210,8 +210,7 @@ def _read_body(data: bytes, header: _Header, path) -> dict:
                     f"{have - need} unexpected bytes after the {el.count} vertices "
                     "(the count in the header is wrong, or the file is corrupt)",
                     path=path, field="vertex")
-            return {p.name: np.ascontiguousarray(rows[p.name], dtype=np.dtype(p.dtype))
-                    for p in el.props}
+            return _split_columns(rows, el.props)
         if any(p.is_list for p in el.props):
             raise ClearsplatError(
                 f"cannot skip element {el.name!r} with list properties that comes before "
@@ -222,6 +221,36 @@ def _read_body(data: bytes, header: _Header, path) -> dict:
             raise ClearsplatError(f"file too short for element {el.name!r}", path=path,
                                   field=el.name)
     raise AssertionError("unreachable: vertex element checked in header")
+
+
+#: Rows per block when moving between a row table and columns: a block of every column stays
+#: in cache, so each byte of the table is read (or written) once.
+_BLOCK_ROWS = 8192
+
+
+def _split_columns(rows: np.ndarray, props) -> dict:
+    """Native-endian contiguous columns of a structured row table, block by block."""
+    n = rows.shape[0]
+    if rows.dtype.isnative and all(np.dtype(p.dtype).itemsize == 4 for p in props) \
+            and rows.dtype.itemsize == 4 * len(props):
+        # The usual 3DGS file: 4-byte properties only. Transpose the (n, k) table of 32-bit
+        # words block by block (a block stays in cache) into one array per column.
+        k = len(props)
+        words = rows.view(np.uint32).reshape(n, k)
+        out = [np.empty(n, dtype=np.uint32) for _ in props]
+        block = np.empty((k, _BLOCK_ROWS), dtype=np.uint32)
+        for a in range(0, n, _BLOCK_ROWS):
+            b = min(a + _BLOCK_ROWS, n)
+            np.copyto(block[:, :b - a], words[a:b].T)
+            for j, col in enumerate(out):
+                col[a:b] = block[j, :b - a]
+        return {p.name: col.view(np.dtype(p.dtype)) for p, col in zip(props, out)}
+    cols = {p.name: np.empty(n, dtype=np.dtype(p.dtype)) for p in props}
+    for a in range(0, n, _BLOCK_ROWS):
+        block = rows[a:a + _BLOCK_ROWS]
+        for name, col in cols.items():
+            col[a:a + _BLOCK_ROWS] = block[name]
+    return cols
 
 
 def _read_ascii(body: bytes, header: _Header, path) -> dict:
@@ -299,12 +328,12 @@ def _parses(word: str, dtype: np.dtype) -> bool:
 def _opacity_from_logit(raw: np.ndarray) -> np.ndarray:
     """Sigmoid in float64 without overflow, rounded to float32."""
     x = np.asarray(raw, dtype=np.float64)
-    out = np.empty_like(x)
-    pos = x >= 0
-    out[pos] = 1.0 / (1.0 + np.exp(-x[pos]))
-    e = np.exp(x[~pos])
-    out[~pos] = e / (1.0 + e)
-    return out.astype(np.float32)
+    # 1 / (1 + e^-x) for x >= 0 and e^x / (1 + e^x) below, with e = e^-|x| for both.
+    e = np.exp(-np.abs(x))
+    num = np.where(x >= 0, 1.0, e)
+    e += 1.0
+    num /= e
+    return num.astype(np.float32)
 
 
 def _logit_from_opacity(o: np.ndarray) -> np.ndarray:
@@ -442,7 +471,7 @@ def _columns_to_gaussians(cols: dict, types: dict, comments: list, path):
                                   "the float32 range", path=path, field=c)
     quats = np.stack([column(c) for c in _ROT], axis=1)
     if n:
-        zero = ~(np.linalg.norm(quats.astype(np.float64), axis=1) > 0)
+        zero = ~(quats != 0).any(axis=1)        # finite: |q| > 0 iff a component is not 0
         if zero.any():
             raise ClearsplatError(f"zero quaternion (first at vertex {int(np.argmax(zero))})",
                                   path=path, field="rot_0..3")
@@ -554,10 +583,16 @@ def write_ply(path, gaussians: Gaussians, *, view_id=None, pixel_id=None) -> Non
     lines += [f"property {tokens[name]} {name}" for name in order]
     lines.append("end_header")
     header = ("\n".join(lines) + "\n").encode("ascii")
-    table = np.empty(n, dtype=[(name, "<" + cols[name].dtype.str[1:]) for name in order])
-    for name in order:
-        table[name] = cols[name]
-    atomic_write_bytes(path, header + table.tobytes())
+    dtype = np.dtype([(name, "<" + cols[name].dtype.str[1:]) for name in order])
+    # Fill the file's bytes in place, block by block (no table copy, no concatenation).
+    data = bytearray(len(header) + n * dtype.itemsize)
+    data[:len(header)] = header
+    table = np.frombuffer(data, dtype=dtype, count=n, offset=len(header))
+    for a in range(0, n, _BLOCK_ROWS):
+        block = table[a:a + _BLOCK_ROWS]
+        for name in order:
+            block[name] = cols[name][a:a + _BLOCK_ROWS]
+    atomic_write_bytes(path, data)
 
 
 def _reuse_raw(g: Gaussians, name: str, memory: np.ndarray, to_memory, fresh) -> np.ndarray:
@@ -611,7 +646,7 @@ def _check_extra(name: str, v: np.ndarray, n: int, path) -> None:
                               path=path, field=name)
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
+def atomic_write_bytes(path, data) -> None:
     """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")

@@ -1,0 +1,82 @@
+"""Whole-process time of ``clearsplat filter`` on a saved scene bundle (imports, loading,
+filtering, writing).
+
+Usage::
+
+    python benchmarks/cli_speed.py                       # 16 views at 192x128 (393,216 Gaussians)
+    python benchmarks/cli_speed.py --views 8 --repeats 5
+
+Builds a stand-in object scene once into a temporary folder (not timed), runs the
+``clearsplat`` command on it ``--repeats`` times (each a fresh process, output replaced with
+``--force``) and prints the median wall-clock seconds, their range, the median CPU seconds
+(all threads; less disturbed by a busy machine) and the peak resident memory. Also times ``python -c "import clearsplat.cli"`` alone (the fixed cost of
+starting). Python's bytecode cache is used as an installed package would (the environment
+variable PYTHONDONTWRITEBYTECODE is cleared for the runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def _timed(cmd: list, env: dict) -> tuple[float, float, float]:
+    """Wall seconds, CPU seconds (all threads) and peak RSS (GB) of one child process."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+    return wall, cpu, max(r1.ru_maxrss, r0.ru_maxrss) / 2**20
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--views", type=int, default=16)
+    p.add_argument("--resolution", default="128x192", help="HxW (default 128x192)")
+    p.add_argument("--family", default="object")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--keep", help="build the bundle in (and keep) this folder")
+    args = p.parse_args(argv)
+    h, w = (int(x) for x in args.resolution.lower().split("x"))
+
+    from clearsplat.io import save_scene
+    from clearsplat.synth import make_world, reconstruct
+
+    root = args.keep or tempfile.mkdtemp(prefix="clearsplat-cli-speed-")
+    bundle, out = os.path.join(root, "scene"), os.path.join(root, "filtered")
+    if not os.path.exists(os.path.join(bundle, "gaussians.ply")):
+        world = make_world(args.family, num_views=args.views, seed=0, height=h, width=w)
+        save_scene(reconstruct(world.cameras, world.images, world.depths, seed=0), bundle,
+                   overwrite=True)
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    exe = [sys.executable, "-m", "clearsplat"]
+    _timed([sys.executable, "-c", "import clearsplat.cli"], env)      # warm the bytecode cache
+    imports = [_timed([sys.executable, "-c", "import clearsplat.cli"], env)
+               for _ in range(args.repeats)]
+    runs = [_timed(exe + ["filter", bundle, "--out", out, "--force"], env)
+            for _ in range(args.repeats)]
+    walls = [r[0] for r in runs]
+    print(f"clearsplat filter, whole process — {args.family}, {args.views} views at {w}x{h}, "
+          f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
+          f"{os.getloadavg()[0]:.1f}; {args.repeats} runs")
+    print(f"  wall s: median {statistics.median(walls):.2f}, range {min(walls):.2f}-"
+          f"{max(walls):.2f}; CPU s (all threads): median "
+          f"{statistics.median(r[1] for r in runs):.2f}; peak RSS {max(r[2] for r in runs):.2f} GB")
+    print(f"  'import clearsplat.cli' alone: wall median "
+          f"{statistics.median(r[0] for r in imports):.2f} s, CPU median "
+          f"{statistics.median(r[1] for r in imports):.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

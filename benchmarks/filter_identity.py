@@ -1,0 +1,105 @@
+"""Check that the filter's output has not changed: removed Gaussians and summaries, bit for bit.
+
+Usage::
+
+    python benchmarks/filter_identity.py --save ref/      # record today's outputs
+    python benchmarks/filter_identity.py --check ref/     # after a change: compare
+
+Runs ``filter_distractors`` on the stand-in scenes (object and street, 4, 8 and 16 views, at
+128x224 and 256x448; the default, ``paper-local`` and non-incremental configurations) and
+stores, per case, the removed Gaussians and the summary without its timings. ``--check``
+prints one line per case and exits 1 if any differs. Speed work must keep every case equal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+CONFIGS = ("default", "paper-local", "full-rerender")
+
+
+def _cases(quick: bool):
+    sizes = ((128, 224),) if quick else ((128, 224), (256, 448))
+    for family in ("object", "street"):
+        for h, w in sizes:
+            for views in (4, 8, 16):
+                yield family, views, h, w
+
+
+def _config(name: str):
+    from clearsplat.filter import FilterConfig
+    if name == "default":
+        return FilterConfig()
+    if name == "paper-local":
+        return FilterConfig.preset("paper-local")
+    return FilterConfig(incremental=False)
+
+
+def _run(family: str, views: int, h: int, w: int, configs) -> dict:
+    import numpy as np
+
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    from clearsplat.synth import make_world, reconstruct
+
+    world = make_world(family, num_views=views, seed=0, height=h, width=w)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    extractor = get_extractor("local")
+    out = {}
+    for name in configs:
+        r = filter_distractors(scene, config=_config(name), extractor=extractor)
+        s = r.summary()
+        s.pop("timings")
+        s["config"].pop("incremental")
+        out[name] = {"removed": np.flatnonzero(r.removed).tolist(), "summary": s}
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--save", metavar="DIR")
+    g.add_argument("--check", metavar="DIR")
+    p.add_argument("--quick", action="store_true", help="128x224 only")
+    p.add_argument("--no-full", action="store_true",
+                   help="skip the non-incremental configuration (slow at 16 views)")
+    args = p.parse_args(argv)
+    folder = args.save or args.check
+    os.makedirs(folder, exist_ok=True)
+    configs = [c for c in CONFIGS if not (args.no_full and c == "full-rerender")]
+    bad = 0
+    for family, views, h, w in _cases(args.quick):
+        name = f"{family}-{views}v-{h}x{w}"
+        path = os.path.join(folder, name + ".json")
+        got = _run(family, views, h, w, configs)
+        if args.save:
+            with open(path, "w") as f:
+                json.dump(got, f)
+            print(f"saved {name}: " + ", ".join(f"{c} removes {len(got[c]['removed'])}"
+                                                for c in configs))
+            continue
+        with open(path) as f:
+            want = json.load(f)
+        for c in configs:
+            if c not in want:
+                print(f"{name} {c}: no reference")
+                continue
+            # Options added since the reference was saved (performance settings that do not
+            # change the output) are not compared.
+            for key in set(got[c]["summary"]["config"]) - set(want[c]["summary"]["config"]):
+                got[c]["summary"]["config"].pop(key)
+            same = (got[c]["removed"] == want[c]["removed"]
+                    and got[c]["summary"] == want[c]["summary"])
+            bad += not same
+            print(f"{name} {c}: {'identical' if same else 'DIFFERENT'} "
+                  f"({len(got[c]['removed'])} removed)")
+    if args.check:
+        print("all identical" if not bad else f"{bad} cases differ")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,82 @@
+"""Prepared views within a memory budget, and verification limited to the views a removal can
+change: the filter's output does not depend on either."""
+
+import numpy as np
+import pytest
+
+from clearsplat.errors import ClearsplatError
+from clearsplat.features import get_extractor
+from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter.views import PreparedViews
+from clearsplat.render import prepare
+from clearsplat.synth import make_world, reconstruct
+
+
+@pytest.fixture(scope="module")
+def street():
+    # A street: cameras along it see only part of the scene, so some views see no Gaussian
+    # of some candidates.
+    w = make_world("street", num_views=8, seed=0, height=32, width=64)
+    return reconstruct(w.cameras, w.images, w.depths, seed=0)
+
+
+@pytest.fixture(scope="module")
+def extractor():
+    return get_extractor("local")
+
+
+def _same(a, b):
+    assert np.array_equal(a.keep, b.keep)
+    assert [c.record() for c in a.candidates] == [c.record() for c in b.candidates]
+
+
+@pytest.mark.parametrize("preset", ["default", "paper-local"])
+def test_views_left_out_change_no_score(street, extractor, preset):
+    """The incremental path leaves out views that see none of a removal's Gaussians; the
+    full-render path visits every view: identical scores prove those views weigh nothing."""
+    cfg = FilterConfig.preset(preset)
+    a = filter_distractors(street, config=cfg, extractor=extractor)
+    b = filter_distractors(street, config=cfg.replace(incremental=False), extractor=extractor)
+    assert b.stats["views_skipped"] == 0
+    if preset == "default":     # (the paper's tests reach every view on this scene)
+        assert a.stats["views_skipped"] > 0
+    assert any("joint" in c.scores or "additional" in c.scores for c in a.candidates)
+    _same(a, b)
+
+
+def test_output_does_not_depend_on_the_view_budget(street, extractor):
+    a = filter_distractors(street, config=FilterConfig(view_memory=None), extractor=extractor)
+    b = filter_distractors(street, config=FilterConfig(view_memory=1e-9), extractor=extractor)
+    _same(a, b)
+    assert a.stats["views_prepared"] == street.num_views
+    assert b.stats["views_prepared"] > street.num_views
+    assert b.stats["views_peak_bytes"] < a.stats["views_peak_bytes"]
+
+
+def test_prepared_views_keep_the_first_within_budget(street):
+    made = []
+
+    def make(i):
+        made.append(i)
+        return prepare(street, street.cameras[i])
+
+    one = prepare(street, street.cameras[0]).memory_bytes
+    views = PreparedViews(len(street), street.cameras, make, budget=int(2.5 * one))
+    for _ in range(2):
+        for i in range(4):
+            assert views[i].camera is street.cameras[i]
+    # Room for two views: 0 stays, the last slot turns over (1, 2, 3, then 1, 2, 3 again).
+    assert made == [0, 1, 2, 3, 1, 2, 3]
+    assert views.peak_bytes <= int(2.5 * one) + max(v.memory_bytes for v in [views[3]])
+    g = views[3].visible
+    assert views.sees_any(3, g[:5])
+    unseen = np.setdiff1d(np.arange(len(street)), g)
+    if unseen.size:
+        assert not views.sees_any(3, unseen)
+    assert not views.sees_any(3, np.empty(0, np.int64))
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("inf"), True, "2"])
+def test_view_memory_must_be_positive(bad):
+    with pytest.raises(ClearsplatError, match="view_memory"):
+        FilterConfig(view_memory=bad)

@@ -1,0 +1,47 @@
+"""The filter's SciPy-free morphology equals SciPy's on seeded random masks."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from clearsplat.filter.association import dilate
+from clearsplat.filter.proposal import connected_regions, label8
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_label8_matches_scipy(seed):
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 40, size=2)
+    mask = rng.random((h, w)) < rng.uniform(0.05, 0.7)
+    want, n_want = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    got, n_got = label8(mask)
+    assert n_got == n_want
+    assert np.array_equal(got, want)
+
+
+def test_label8_empty_and_full():
+    labels, n = label8(np.zeros((3, 4), bool))
+    assert n == 0 and not labels.any()
+    labels, n = label8(np.ones((3, 4), bool))
+    assert n == 1 and (labels == 1).all()
+
+
+def test_connected_regions_diagonal_touch_is_one_region():
+    r = np.zeros((4, 4), np.int8)
+    r[0, 0] = r[1, 1] = 2
+    r[3, 3] = 2
+    regions = connected_regions(r, 2)
+    assert len(regions) == 2
+    assert regions[0].sum() == 2 and regions[1][3, 3]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_dilate_matches_scipy(seed):
+    rng = np.random.default_rng(100 + seed)
+    h, w = rng.integers(1, 60, size=2)
+    mask = rng.random((h, w)) < rng.uniform(0.0, 0.05)
+    r = int(rng.integers(0, 12))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    disk = (yy * yy + xx * xx) <= r * r
+    want = ndimage.binary_dilation(mask, structure=disk) if r > 0 else mask
+    assert np.array_equal(dilate(mask, r), want)
