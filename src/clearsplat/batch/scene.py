@@ -53,7 +53,6 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
         Copy the input images into the folder instead of referring to them.
     """
     from ..io import load_cameras, save_bundle_cameras, write_ply
-    from ..report import write_report
 
     if keep_all:
         kept = result.apply(scene)
@@ -70,7 +69,8 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
         cameras, image_paths = load_cameras(source)
         save_bundle_cameras(folder, cameras, image_paths, located_at=located_at,
                             copy_images=copy_images, render=scene.render_settings)
-    if report:
+    if report:                          # report and video modules only when asked for
+        from ..report import write_report
         from ..video import make_video
         os.makedirs(os.path.join(folder, "report"), exist_ok=True)
         video = make_video(os.path.join(folder, "report", "video.mp4"), scene, result.keep,

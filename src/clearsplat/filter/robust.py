@@ -26,7 +26,6 @@ the ``paper`` presets):
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 __all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
            "tolerant_reference", "misregistration"]
@@ -122,6 +121,8 @@ def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.nd
 
 def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel minimum and maximum of ``image`` over a (2r+1)^2 window, (H, W, 3) each."""
+    from scipy import ndimage          # only where a tolerance is in use: a cheaper import
+
     size = (2 * int(radius) + 1, 2 * int(radius) + 1, 1)
     image = np.asarray(image, dtype=np.float32)
     return (ndimage.minimum_filter(image, size=size, mode="nearest"),
@@ -186,6 +187,8 @@ def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
             out_lo.append(rgb)
             out_hi.append(rgb)
             continue
+        from scipy import ndimage      # only where a tolerance is in use: a cheaper import
+
         size = 2 * int(r) + 1
         far = np.where(d > 0, d, np.inf)
         near = ndimage.minimum_filter(far, size=size, mode="nearest")
