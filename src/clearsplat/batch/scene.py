@@ -80,7 +80,8 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
 
 
 def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: bool = False,
-                 copy_images: bool = False, force: bool = False, progress=None) -> dict:
+                 copy_images: bool = False, force: bool = False, progress=None,
+                 log=None) -> dict:
     """Load the bundle ``scene``, filter it and write the outputs into the folder ``out``.
 
     Parameters
@@ -98,12 +99,14 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         Replace an ``out`` folder that clearsplat wrote earlier.
     progress : callable, optional
         ``progress(stage, done, total)``, passed to the filter.
+    log : callable, optional
+        ``log(line)``, told the scene's size once it is loaded (``clearsplat filter`` prints it).
 
     Returns
     -------
     dict
-        ``gaussians``, ``removed``, ``accepted`` (counts), ``seconds`` (wall time of the
-        whole call) and ``warnings`` (list of str, each once).
+        ``gaussians``, ``removed``, ``accepted``, ``candidates`` (counts), ``seconds`` (wall
+        time of the whole call) and ``warnings`` (list of str, each once).
 
     Raises
     ------
@@ -117,6 +120,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
     t0 = time.perf_counter()
     check_output_folder(out, inputs=[scene], force=force)
     loaded = load_scene(scene)
+    if log is not None:
+        log(f"{len(loaded):,} Gaussians, {loaded.num_views} views")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -140,7 +145,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
             shown.append(message)
     s = result.summary()
     return {"gaussians": s["gaussians"], "removed": s["removed"], "accepted": s["accepted"],
-            "seconds": time.perf_counter() - t0, "warnings": shown}
+            "candidates": len(s["candidates"]), "seconds": time.perf_counter() - t0,
+            "warnings": shown}
 
 
 def ply_vertex_count(path) -> int | None:

@@ -58,7 +58,7 @@ def removed_mask(folder, n: int | None, *, required: bool = True):
     try:
         removed = np.load(path, allow_pickle=False)
     except (ValueError, OSError) as e:
-        raise ClearsplatError(f"cannot read ({' '.join(str(e).split())[:80]})", path=path,
+        raise ClearsplatError(f"cannot read ({' '.join(str(e).split())})", path=path,
                               field="removed") from None
     if removed.dtype != bool or removed.ndim != 1:
         raise ClearsplatError(f"expected a 1-D bool array, got {removed.dtype} {removed.shape}",

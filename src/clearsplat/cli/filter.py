@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
-
-from ..errors import ClearsplatError
 from ._common import (Bar, add_config_args, add_filter_output_args, config_from_args,
                       warn)
 
@@ -23,38 +20,15 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..batch import write_filter_outputs
-    from ..filter import filter_distractors
-    from ..io import load_scene
-    from ..io.output import check_output_folder, output_folder
+    from ..batch import filter_scene
+    from ..io.output import check_output_folder
 
     check_output_folder(args.out, inputs=[args.scene], force=args.force)
-    config = config_from_args(args)
-    scene = load_scene(args.scene)
-    print(f"{len(scene):,} Gaussians, {scene.num_views} views")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            result = filter_distractors(scene, config=config, progress=Bar())
-        except ClearsplatError as e:
-            if e.path is None:          # an in-memory check: the scene is the file at fault
-                raise ClearsplatError(e.reason, path=args.scene, field=e.field) from None
-            raise
-    shown = set()
-    for message in [str(w.message) for w in caught] + list(result.warnings):
-        if message not in shown:
-            shown.add(message)
-            warn(message)
-
-    with output_folder(args.out, inputs=[args.scene], force=args.force,
-                       command="filter") as tmp, warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")             # the video's GIF fallback
-        write_filter_outputs(tmp, scene, result, keep_all=args.keep_all, report=args.report,
-                             source=args.scene, located_at=args.out,
-                             copy_images=args.copy_images)
-    for w in caught:
-        warn(str(w.message))
-    s = result.summary()
-    print(f"removed {s['removed']:,} of {s['gaussians']:,} Gaussians "
-          f"({s['accepted']} of {len(s['candidates'])} candidates); wrote {args.out}")
+    r = filter_scene(args.scene, args.out, config=config_from_args(args),
+                     keep_all=args.keep_all, report=args.report, copy_images=args.copy_images,
+                     force=args.force, progress=Bar(), log=print)
+    for message in r["warnings"]:
+        warn(message)
+    print(f"removed {r['removed']:,} of {r['gaussians']:,} Gaussians "
+          f"({r['accepted']} of {r['candidates']} candidates); wrote {args.out}")
     return 0

@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import ClearsplatError
 from ..scene import Gaussians
 
-__all__ = ["read_ply", "write_ply", "RAW_PREFIX"]
+__all__ = ["read_ply", "write_ply", "atomic_write_bytes", "RAW_PREFIX"]
 
 #: Prefix of the private ``Gaussians.extra`` keys holding raw on-disk columns.
 RAW_PREFIX = "__ply_raw__:"
