@@ -248,7 +248,7 @@ class FilterConfig:
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
     refine_color: float | None = 0.5
-    verify_mask: Literal["proposals+revealing", "proposals"] = "proposals+revealing"
+    verify_mask: Literal["proposals+revealing", "proposals", "revealing"] = "proposals+revealing"
     verify_holes: Literal["auto", "skip", "count"] = "auto"
     min_score: float = 0.0
     association_min_weight: float = 0.05
@@ -267,8 +267,8 @@ class FilterConfig:
             spec = FIELD_SPECS.get(f.name)
             if spec is not None:        # tests/test_config.py requires a spec for every field
                 object.__setattr__(self, f.name, spec.check(f.name, getattr(self, f.name)))
-        if self.verify_mask == "proposals+revealing" and self.refine == "none":
-            raise ClearsplatError("'proposals+revealing' needs refine other than 'none' "
+        if "revealing" in self.verify_mask and self.refine == "none":
+            raise ClearsplatError(f"{self.verify_mask!r} needs refine other than 'none' "
                                   "(or choose verify_mask='proposals')", field="verify_mask")
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
             raise ClearsplatError(f"tau1 ({self.tau1}) must be below tau2 ({self.tau2})",
@@ -339,7 +339,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine": FieldSpec("choice", choices=("static-depth", "depth", "none")),
     "refine_margin": FieldSpec("number", 0.0),
     "refine_color": FieldSpec("number", 0.0, 3.0, optional=True),
-    "verify_mask": FieldSpec("choice", choices=("proposals+revealing", "proposals")),
+    "verify_mask": FieldSpec("choice", choices=("proposals+revealing", "proposals", "revealing")),
     "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
     "min_score": FieldSpec("number"),
     "association_min_weight": _unit(low_open=True),

@@ -315,7 +315,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     def to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         return refined(region_to_gaussians(view, pixels))
 
-    if config.verify_mask == "proposals+revealing":
+    if "revealing" in config.verify_mask:
         for prop in proposals:
             prop.unreliable = pixels_of(scene, index, prop.view, revealing)
     candidates = [Candidate(k, r.view, r.range, r.pixels, refined(g))
@@ -341,7 +341,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             c.expanded = expand(c)
             c.accepted, c.reason = True, "accepted without verification"
     else:
-        q = {1: _exclusion_masks(proposals, 1), 2: _exclusion_masks(proposals, 2)}
+        q = {r: _exclusion_masks(proposals, r, config.verify_mask) for r in (1, 2)}
         _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_counts,
                           config, report)
         lap("individual")
@@ -403,11 +403,15 @@ def _skip_holes(config: FilterConfig, scene: Scene) -> bool:
     return config.verify_holes == "skip"
 
 
-def _exclusion_masks(proposals, rng: int) -> list[np.ndarray]:
+def _exclusion_masks(proposals, rng: int, mode: str) -> list[np.ndarray]:
     """Q_j per view: M_j^1 for first-range candidates, M_j^1 | M_j^2 for second-range ones,
-    plus the view's unreliable pixels where ``verify_mask`` asks for them."""
+    plus the view's unreliable pixels where ``verify_mask`` asks for them; only the unreliable
+    pixels with ``verify_mask="revealing"``."""
     out = []
     for p in proposals:
+        if mode == "revealing":
+            out.append(p.unreliable)
+            continue
         q = p.mask1 if rng == 1 else (p.mask1 | p.mask2)
         out.append(q if p.unreliable is None else (q | p.unreliable))
     return out
