@@ -261,6 +261,7 @@ class FilterConfig:
     verify_tolerance: int = 0
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.0
+    refine_passes: int = 1
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -352,6 +353,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "verify_tolerance": FieldSpec("integer", 0),
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
+    "refine_passes": FieldSpec("integer", 1),
 }
 
 
@@ -363,11 +365,11 @@ PRESETS = {
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
                           verify_tolerance=0, refine_tolerance=0,
-                          min_relative_score=0.0),
+                          min_relative_score=0.0, refine_passes=1),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
                                 verify_tolerance=0, refine_tolerance=0,
-                                min_relative_score=0.0),
+                                min_relative_score=0.0, refine_passes=1),
 }

@@ -278,35 +278,17 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
             proposed[g] = True
-        reference, reference_rgb = [], []
-        for i in range(scene.num_views):
-            others = proposed & ~own[i]
-            if _sees(views, i, others, incremental):
-                pv = views[i]
-                static = pv.rerender(excl[i], keep=~(own[i] | proposed),
-                                     tiles=pv.tiles_touched(others))
-            else:   # nothing proposed in this view: the reference is R_i^-i itself
-                static = excl[i]
-            # Where the proposals of the other views leave a hole, fall back to R_i^-i.
-            solid = static.alpha > _STATIC_MIN_ALPHA
-            reference.append(np.where(solid, static.depth, excl[i].depth))
-            # Colours only where the other views cover the pixel fully: a partly covered pixel
-            # (the edge of what they see) mixes in the background and proves nothing.
-            covered = static.alpha >= _COLOR_MIN_ALPHA
-            reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
-        reference_hi = None
-        if config.refine_tolerance != 0:
-            radii = config.refine_tolerance
-            if radii == "auto":   # each view's measured misregistration with the others
-                radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
-                         for i in range(scene.num_views)]
-            reference, reference_rgb, reference_hi = tolerant_reference(
-                reference, reference_rgb, radii)
-        revealing = revealing_gaussians(scene, index, reference, margin=config.refine_margin,
-                                        reference_rgbs=reference_rgb,
-                                        color_threshold=config.refine_color, images=images,
-                                        align_scale=config.depth_scale_align,
-                                        reference_rgbs_hi=reference_hi)
+        radii = config.refine_tolerance
+        if radii == "auto":   # each view's measured misregistration with the others
+            radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
+                     for i in range(scene.num_views)]
+        for _ in range(config.refine_passes):
+            # Each later pass (``refine_passes``) builds the static reference without only the
+            # proposed Gaussians that the previous pass kept, so that static content proposed
+            # by some view (around another view's distractor) stays in the reference.
+            revealing = _static_revealing(scene, index, views, excl, own, proposed, images,
+                                          radii, config, incremental)
+            proposed &= revealing
     lap("refine")
 
     def refined(g: np.ndarray) -> np.ndarray:
@@ -369,6 +351,37 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         views.release()
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, config, stats=stats)
+
+
+def _static_revealing(scene, index, views, excl, own, proposed, images, radii, config,
+                      incremental) -> np.ndarray:
+    """(N,) bool: the Gaussians in front of the static reference (``refine="static-depth"``),
+    the reference being each view's exclusion render without the ``proposed`` Gaussians."""
+    reference, reference_rgb = [], []
+    for i in range(scene.num_views):
+        others = proposed & ~own[i]
+        if _sees(views, i, others, incremental):
+            pv = views[i]
+            static = pv.rerender(excl[i], keep=~(own[i] | proposed),
+                                 tiles=pv.tiles_touched(others))
+        else:   # nothing proposed in this view: the reference is R_i^-i itself
+            static = excl[i]
+        # Where the proposals of the other views leave a hole, fall back to R_i^-i.
+        solid = static.alpha > _STATIC_MIN_ALPHA
+        reference.append(np.where(solid, static.depth, excl[i].depth))
+        # Colours only where the other views cover the pixel fully: a partly covered pixel
+        # (the edge of what they see) mixes in the background and proves nothing.
+        covered = static.alpha >= _COLOR_MIN_ALPHA
+        reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
+    reference_hi = None
+    if radii != 0:
+        reference, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
+                                                                    radii)
+    return revealing_gaussians(scene, index, reference, margin=config.refine_margin,
+                               reference_rgbs=reference_rgb,
+                               color_threshold=config.refine_color, images=images,
+                               align_scale=config.depth_scale_align,
+                               reference_rgbs_hi=reference_hi)
 
 
 def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:
