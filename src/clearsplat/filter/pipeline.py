@@ -282,12 +282,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         if radii == "auto":   # each view's measured misregistration with the others
             radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
                      for i in range(scene.num_views)]
+        contact = None
         for _ in range(config.refine_passes):
             # Each later pass (``refine_passes``) builds the static reference without only the
             # proposed Gaussians that the previous pass kept, so that static content proposed
             # by some view (around another view's distractor) stays in the reference.
-            revealing = _static_revealing(scene, index, views, excl, own, proposed, images,
-                                          radii, config, incremental)
+            revealing, contact = _static_revealing(scene, index, views, excl, own, proposed,
+                                                   images, radii, config, incremental, contact)
             proposed &= revealing
     lap("refine")
 
@@ -354,9 +355,15 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
 
 def _static_revealing(scene, index, views, excl, own, proposed, images, radii, config,
-                      incremental) -> np.ndarray:
+                      incremental, contact=None) -> tuple[np.ndarray, list]:
     """(N,) bool: the Gaussians in front of the static reference (``refine="static-depth"``),
-    the reference being each view's exclusion render without the ``proposed`` Gaussians."""
+    the reference being each view's exclusion render without the ``proposed`` Gaussians; and
+    the depths the colour test's contact check used.
+
+    ``contact``: the previous pass's; the colour test then accepts contact with the farther
+    of the two surfaces (a fuller reference blends the surface in front of an object's foot
+    into its pixels, a few percent nearer, and would drop the foot that still differs in
+    colour)."""
     reference, reference_rgb = [], []
     for i in range(scene.num_views):
         others = proposed & ~own[i]
@@ -377,11 +384,15 @@ def _static_revealing(scene, index, views, excl, own, proposed, images, radii, c
     if radii != 0:
         reference, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
                                                                     radii)
+    if contact is not None:
+        contact = [np.maximum(a, b) for a, b in zip(contact, reference)]
+    else:
+        contact = reference
     return revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                reference_rgbs=reference_rgb,
                                color_threshold=config.refine_color, images=images,
                                align_scale=config.depth_scale_align,
-                               reference_rgbs_hi=reference_hi)
+                               reference_rgbs_hi=reference_hi, contact_depths=contact), contact
 
 
 def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:
