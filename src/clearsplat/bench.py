@@ -40,27 +40,36 @@ ABLATIONS = {
     "single<tau2": "default+single_threshold=true",
     "single<tau1": "default+second_range=false",
     "no-verify": "default+verify=false",
-    # Options for real backbones (docs/method.md, "Real backbones"): the default's one off,
+    # Options for real backbones (docs/method.md, "Real backbones"): the default's ones off,
     # the others on.
     "no-refine-tol": "default+refine_tolerance=0",
     "refine-tol=2": "default+refine_tolerance=2",
+    "no-depth-scale": "default+depth_scale_align=false",
+    "one-refine-pass": "default+refine_passes=1",
+    "mask-proposals": "default+verify_mask=proposals+revealing",
     "+photo-align": "default+photometric_align=true",
-    "+depth-scale": "default+depth_scale_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
 }
 
 
 def parse_config(spec: str) -> FilterConfig:
-    """A config from ``PRESET[+key=value...]``, e.g. ``default+refine=none+tau1=0.4``."""
+    """A config from ``PRESET[+key=value...]``, e.g. ``default+refine=none+tau1=0.4``; a part
+    without ``=`` continues the previous value (``verify_mask=proposals+revealing``)."""
     from .errors import ClearsplatError
     preset, *items = spec.split("+")
-    changes = {}
+    raw: dict = {}
+    key = None
     for item in items:
         if "=" not in item:
-            raise ClearsplatError(f"expected key=value, got {item!r}", field="--config")
-        k, v = item.split("=", 1)
-        changes[k.strip()] = parse_value(v.strip())
+            if key is None:
+                raise ClearsplatError(f"expected key=value, got {item!r}", field="--config")
+            raw[key] += "+" + item.strip()
+            continue
+        key, v = item.split("=", 1)
+        key = key.strip()
+        raw[key] = v.strip()
+    changes = {k: parse_value(v) for k, v in raw.items()}
     return FilterConfig.preset(preset.strip()).replace(**changes)
 
 

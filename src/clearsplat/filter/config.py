@@ -173,11 +173,16 @@ class FilterConfig:
         With ``refine="static-depth"``: also keep Gaussians whose input colour differs from the
         static reference's colour by more than this (L1 over RGB) and that do not lie behind it
         (the parts of an object that touch the surface behind it). None: depth only.
-    verify_mask : {"proposals+revealing", "proposals"}
+    verify_mask : {"auto", "proposals+revealing", "proposals", "revealing"}
         Pixels each verifying view leaves out. ``"proposals"``: its proposal regions (the paper).
         ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
         static reference (its own likely distractors, where the input does not show the static
-        scene); needs ``refine`` other than ``"none"``.
+        scene). ``"revealing"``: only those: a proposal region of the verifying view is often
+        caused by the candidate itself (another view's distractor standing in its exclusion
+        render), and leaving it out leaves out the very pixels that would confirm the
+        candidate. ``"auto"``: ``"revealing"`` with three or more views, where each view's
+        static reference comes from at least two others; ``"proposals+revealing"`` with two.
+        All but ``"proposals"`` need ``refine`` other than ``"none"``.
     verify_holes : {"auto", "skip", "count"}
         Pixels where the render after a removal keeps accumulated opacity below ``eta`` show what
         no remaining Gaussian saw. ``"count"`` scores them against the empty background (the
@@ -206,7 +211,9 @@ class FilterConfig:
         differ in exposure or white balance then compare like with like. False: the paper.
     depth_scale_align : bool
         Judge "in front of the static surface" (``refine``) in each view's own depth scale: its
-        depths divided by their median ratio to the static reference first. False: the paper.
+        depths divided by their median ratio to the static reference first, and the margin
+        widened to 2.5 robust standard deviations of that ratio where the view's depths are
+        noisier. False: the paper.
     verify_tolerance : int
         Radius in pixels: a verification error counts only the distance of a render colour to the
         range of the input colours within this radius (0: the plain L1 error, the paper), so that
@@ -226,6 +233,14 @@ class FilterConfig:
         explains most of the error where it changes the render; static content that the views
         merely place a little differently (pose error, depth scale) trades one error for another
         and scores a small share even when its score is positive. 0: the paper.
+    refine_passes : int
+        How often ``refine="static-depth"`` builds its static reference. The first pass renders
+        each view without every proposed Gaussian of the others; a proposal region covers whole
+        patches, so much static content goes with it and static surfaces "in front of" the
+        hole it leaves qualify. Each later pass leaves out only the proposed Gaussians the
+        previous pass kept, and its colour test accepts contact with the farther of the two
+        references. 1: a single pass (the default before this option; the paper does not
+        refine).
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -248,7 +263,7 @@ class FilterConfig:
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
     refine_color: float | None = 0.5
-    verify_mask: Literal["proposals+revealing", "proposals", "revealing"] = "proposals+revealing"
+    verify_mask: Literal["auto", "proposals+revealing", "proposals", "revealing"] = "auto"
     verify_holes: Literal["auto", "skip", "count"] = "auto"
     min_score: float = 0.0
     association_min_weight: float = 0.05
@@ -257,18 +272,18 @@ class FilterConfig:
     view_memory: float | None = 2.0
     device: str = "cpu"
     photometric_align: bool = False
-    depth_scale_align: bool = False
+    depth_scale_align: bool = True
     verify_tolerance: int = 0
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.0
-    refine_passes: int = 1
+    refine_passes: int = 2
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
             spec = FIELD_SPECS.get(f.name)
             if spec is not None:        # tests/test_config.py requires a spec for every field
                 object.__setattr__(self, f.name, spec.check(f.name, getattr(self, f.name)))
-        if "revealing" in self.verify_mask and self.refine == "none":
+        if self.verify_mask != "proposals" and self.refine == "none":
             raise ClearsplatError(f"{self.verify_mask!r} needs refine other than 'none' "
                                   "(or choose verify_mask='proposals')", field="verify_mask")
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
@@ -340,7 +355,8 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine": FieldSpec("choice", choices=("static-depth", "depth", "none")),
     "refine_margin": FieldSpec("number", 0.0),
     "refine_color": FieldSpec("number", 0.0, 3.0, optional=True),
-    "verify_mask": FieldSpec("choice", choices=("proposals+revealing", "proposals", "revealing")),
+    "verify_mask": FieldSpec("choice", choices=("auto", "proposals+revealing", "proposals",
+                                                 "revealing")),
     "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
     "min_score": FieldSpec("number"),
     "association_min_weight": _unit(low_open=True),

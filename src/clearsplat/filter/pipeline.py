@@ -298,7 +298,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     def to_gaussians(view: int, pixels: np.ndarray) -> np.ndarray:
         return refined(region_to_gaussians(view, pixels))
 
-    if "revealing" in config.verify_mask:
+    if config.verify_mask != "proposals":
         for prop in proposals:
             prop.unreliable = pixels_of(scene, index, prop.view, revealing)
     candidates = [Candidate(k, r.view, r.range, r.pixels, refined(g))
@@ -324,7 +324,10 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             c.expanded = expand(c)
             c.accepted, c.reason = True, "accepted without verification"
     else:
-        q = {r: _exclusion_masks(proposals, r, config.verify_mask) for r in (1, 2)}
+        mode = config.verify_mask
+        if mode == "auto":
+            mode = "revealing" if scene.num_views > 2 else "proposals+revealing"
+        q = {r: _exclusion_masks(proposals, r, mode) for r in (1, 2)}
         _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_counts,
                           config, report)
         lap("individual")
