@@ -15,7 +15,7 @@ from clearsplat.synth import make_world
 from clearsplat.synth.realism import realistic_reconstruction
 
 NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
-           refine_tolerance=2, min_relative_score=0.3)
+           refine_tolerance=2, min_relative_score=0.3, refine_passes=2)
 
 
 def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
@@ -133,9 +133,11 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         assert not cfg.photometric_align and not cfg.depth_scale_align
         assert cfg.verify_tolerance == 0 and cfg.refine_tolerance == 0
         assert cfg.min_relative_score == 0.0
+        assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
     for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
                        ("verify_tolerance", True), ("min_relative_score", 1.0),
-                       ("min_relative_score", -0.1)):
+                       ("min_relative_score", -0.1), ("refine_passes", 0),
+                       ("refine_passes", 1.5), ("verify_mask", "none")):
         with pytest.raises(ClearsplatError) as e:
             FilterConfig(**{field: bad})
         assert e.value.field == field
@@ -151,7 +153,7 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     scene, _ = soft_scene
     ex = get_extractor("local")
     off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
-               refine_tolerance=0, min_relative_score=0.0)
+               refine_tolerance=0, min_relative_score=0.0, refine_passes=1)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -167,7 +169,8 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
     base = filter_distractors(scene, config=FilterConfig(min_relative_score=0.0, verify_tolerance=0,
                                                          refine_tolerance=0,
                                                          depth_scale_align=False,
-                                                         photometric_align=False), extractor=ex)
+                                                         photometric_align=False,
+                                                         refine_passes=1), extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
                              extractor=ex)
     assert res.keep.shape == base.keep.shape
@@ -180,3 +183,69 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
         # ... and the same proposals and individual scores.
         assert [c.scores.get("individual") for c in res.candidates] == \
             [c.scores.get("individual") for c in base.candidates]
+
+
+def test_contact_depths_move_only_the_colour_tests_not_behind_bound():
+    """``contact_depths`` (later refinement passes) decide only whether a Gaussian whose colour
+    differs lies behind the surface; the depth test still uses the reference."""
+    world = make_world("object", num_views=3, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
+    index = ViewIndex(scene)
+    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
+    # Every colour differs from the reference; the reference 4 % nearer than the truth puts
+    # every Gaussian 4 % behind it (beyond the 2 % margin), the truth itself does not.
+    grey = [np.full(im.shape, 2.0, np.float32) for im in scene.images]
+    near = [d * 0.96 for d in ref]
+    kw = dict(margin=0.02, reference_rgbs=grey, color_threshold=0.5)
+    behind = revealing_gaussians(scene, index, near, **kw)
+    touching = revealing_gaussians(scene, index, near, contact_depths=ref, **kw)
+    same = revealing_gaussians(scene, index, ref, **kw)
+    assert behind.mean() < 0.05
+    assert touching.mean() > 0.9
+    np.testing.assert_array_equal(touching, same)
+    # Without a colour test the contact surface changes nothing.
+    np.testing.assert_array_equal(
+        revealing_gaussians(scene, index, near, margin=0.02),
+        revealing_gaussians(scene, index, near, margin=0.02, contact_depths=ref))
+
+
+def test_verification_mask_modes(soft_scene):
+    """``"revealing"`` leaves out exactly the verifying view's unreliable pixels, ``"auto"`` is
+    ``"revealing"`` with three or more views and ``"proposals+revealing"`` with two."""
+    from clearsplat.filter.pipeline import _exclusion_masks
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    res = {m: filter_distractors(scene, config=FilterConfig(verify_mask=m), extractor=ex)
+           for m in ("auto", "revealing", "proposals+revealing")}
+    props = res["revealing"].proposals
+    for rng in (1, 2):
+        for p, q in zip(props, _exclusion_masks(props, rng, "revealing")):
+            np.testing.assert_array_equal(q, p.unreliable)
+        for p, q in zip(props, _exclusion_masks(props, rng, "proposals+revealing")):
+            m = p.mask1 if rng == 1 else p.mask1 | p.mask2
+            np.testing.assert_array_equal(q, m | p.unreliable)
+    assert scene.num_views == 3
+    np.testing.assert_array_equal(res["auto"].keep, res["revealing"].keep)
+    assert [c.scores for c in res["auto"].candidates] == \
+        [c.scores for c in res["revealing"].candidates]
+    # the masks differ, and with them some score
+    assert [c.scores for c in res["revealing"].candidates] != \
+        [c.scores for c in res["proposals+revealing"].candidates]
+    world = make_world("street", num_views=2, seed=1, height=48, width=80)
+    two, _ = realistic_reconstruction(world, "plain", seed=1)
+    a = filter_distractors(two, config=FilterConfig(verify_mask="auto"), extractor=ex)
+    b = filter_distractors(two, config=FilterConfig(verify_mask="proposals+revealing"),
+                           extractor=ex)
+    np.testing.assert_array_equal(a.keep, b.keep)
+    assert [c.scores for c in a.candidates] == [c.scores for c in b.candidates]
+    with pytest.raises(ClearsplatError):
+        FilterConfig(refine="none", verify_mask="auto")
+
+
+def test_config_specs_read_values_with_a_plus():
+    from clearsplat.bench import parse_config
+    cfg = parse_config("default+verify_mask=proposals+revealing+refine_passes=1")
+    assert cfg.verify_mask == "proposals+revealing" and cfg.refine_passes == 1
+    assert parse_config("paper-local") == FilterConfig.preset("paper-local")
+    with pytest.raises(ClearsplatError):
+        parse_config("default+revealing")
