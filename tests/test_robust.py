@@ -185,30 +185,6 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
             [c.scores.get("individual") for c in base.candidates]
 
 
-def test_contact_depths_move_only_the_colour_tests_not_behind_bound():
-    """``contact_depths`` (later refinement passes) decide only whether a Gaussian whose colour
-    differs lies behind the surface; the depth test still uses the reference."""
-    world = make_world("object", num_views=3, seed=4, height=48, width=80)
-    scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
-    index = ViewIndex(scene)
-    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
-    # Every colour differs from the reference; the reference 4 % nearer than the truth puts
-    # every Gaussian 4 % behind it (beyond the 2 % margin), the truth itself does not.
-    grey = [np.full(im.shape, 2.0, np.float32) for im in scene.images]
-    near = [d * 0.96 for d in ref]
-    kw = dict(margin=0.02, reference_rgbs=grey, color_threshold=0.5)
-    behind = revealing_gaussians(scene, index, near, **kw)
-    touching = revealing_gaussians(scene, index, near, contact_depths=ref, **kw)
-    same = revealing_gaussians(scene, index, ref, **kw)
-    assert behind.mean() < 0.05
-    assert touching.mean() > 0.9
-    np.testing.assert_array_equal(touching, same)
-    # Without a colour test the contact surface changes nothing.
-    np.testing.assert_array_equal(
-        revealing_gaussians(scene, index, near, margin=0.02),
-        revealing_gaussians(scene, index, near, margin=0.02, contact_depths=ref))
-
-
 def test_verification_mask_modes(soft_scene):
     """``"revealing"`` leaves out exactly the verifying view's unreliable pixels, ``"auto"`` is
     ``"revealing"`` with three or more views and ``"proposals+revealing"`` with two."""

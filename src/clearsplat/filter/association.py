@@ -115,8 +115,7 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         margin: float, reference_rgbs: list[np.ndarray] | None = None,
                         color_threshold: float | None = None, images: list | None = None,
                         align_scale: bool = False,
-                        reference_rgbs_hi: list[np.ndarray] | None = None,
-                        contact_depths: list[np.ndarray] | None = None) -> np.ndarray:
+                        reference_rgbs_hi: list[np.ndarray] | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -148,9 +147,6 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     reference_rgbs_hi : list of (H, W, 3) float, optional
         Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
         the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
-    contact_depths : list of (H, W) float, optional
-        The surface that the colour test's "does not lie behind it" is measured against
-        (default: ``reference_depths``); see ``FilterConfig.refine_passes``.
     """
     from .robust import view_depth_scales
     images = scene.images if images is None else images
@@ -163,10 +159,6 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
-        contact = behind
-        if contact_depths is not None:
-            contact = np.zeros(members.size)
-            contact[valid] = contact_depths[view].ravel()[pix[valid]]
         view_margin = margin
         if align_scale:
             scale, spread = view_depth_scales([z], [behind])[0]
@@ -186,7 +178,7 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                     hi = reference_rgbs_hi[view].reshape(-1, 3)[pix[valid]]
                     diff = (np.maximum(ref[pix[valid]] - x, 0) + np.maximum(x - hi, 0)).sum(-1)
             differ[valid] = diff > color_threshold       # False where the reference is NaN
-            front |= differ & (contact > 0) & (z > 0) & (z < (1.0 + margin) * contact)
+            front |= differ & (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
         out[members] = front
     return out
 

@@ -238,9 +238,14 @@ class FilterConfig:
         each view without every proposed Gaussian of the others; a proposal region covers whole
         patches, so much static content goes with it and static surfaces "in front of" the
         hole it leaves qualify. Each later pass leaves out only the proposed Gaussians the
-        previous pass kept, and its colour test accepts contact with the farther of the two
-        references. 1: a single pass (the default before this option; the paper does not
-        refine).
+        previous pass kept. 1: a single pass (the paper does not refine at all).
+    expand_connected : bool
+        Also expand an accepted candidate [hat C_k] into every 8-connected group of its view's
+        pixels that it touches whose Gaussians stand in front of the static reference
+        (``refine``) within cells of similarity below tau2, whether or not the support
+        condition holds there: the support is judged per patch, and a distractor's patches
+        where the other views render little, or at a similar mean depth, drop out of the
+        paper's expansion. False: the paper (dilation within the support only).
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -277,6 +282,7 @@ class FilterConfig:
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.0
     refine_passes: int = 2
+    expand_connected: bool = False
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -370,6 +376,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
     "refine_passes": FieldSpec("integer", 1),
+    "expand_connected": FieldSpec("bool"),
 }
 
 
@@ -381,11 +388,13 @@ PRESETS = {
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
                           verify_tolerance=0, refine_tolerance=0,
-                          min_relative_score=0.0, refine_passes=1),
+                          min_relative_score=0.0, refine_passes=1,
+                          expand_connected=False),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
                                 verify_tolerance=0, refine_tolerance=0,
-                                min_relative_score=0.0, refine_passes=1),
+                                min_relative_score=0.0, refine_passes=1,
+                                expand_connected=False),
 }

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._memory import check_memory, estimate_filter_memory
 from ..errors import ClearsplatError
-from ..features import get_extractor
+from ..features import get_extractor, upsample_nearest
 from ..render import prepare
 from ..scene import Scene
 from .association import (ViewIndex, dilate, pixels_of, region_gaussians, revealing_gaussians,
@@ -282,13 +282,12 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         if radii == "auto":   # each view's measured misregistration with the others
             radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
                      for i in range(scene.num_views)]
-        contact = None
         for _ in range(config.refine_passes):
             # Each later pass (``refine_passes``) builds the static reference without only the
             # proposed Gaussians that the previous pass kept, so that static content proposed
             # by some view (around another view's distractor) stays in the reference.
-            revealing, contact = _static_revealing(scene, index, views, excl, own, proposed,
-                                                   images, radii, config, incremental, contact)
+            revealing = _static_revealing(scene, index, views, excl, own, proposed, images,
+                                          radii, config, incremental)
             proposed &= revealing
     lap("refine")
 
@@ -316,8 +315,14 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                         images_hi=hi)
     support_px = [p.support_pixels for p in proposals]
 
+    grown: dict = {}
+
     def expand(c: Candidate) -> np.ndarray:
-        return to_gaussians(c.view, dilate(c.pixels, config.dilation) & support_px[c.view])
+        pixels = dilate(c.pixels, config.dilation) & support_px[c.view]
+        if config.expand_connected and revealing is not None:
+            pixels = _grow_connected(pixels, c.view, grown, scene, index, revealing,
+                                     proposals[c.view], tau2)
+        return to_gaussians(c.view, pixels)
 
     if not config.verify:
         for c in candidates:
@@ -358,15 +363,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
 
 def _static_revealing(scene, index, views, excl, own, proposed, images, radii, config,
-                      incremental, contact=None) -> tuple[np.ndarray, list]:
+                      incremental) -> np.ndarray:
     """(N,) bool: the Gaussians in front of the static reference (``refine="static-depth"``),
-    the reference being each view's exclusion render without the ``proposed`` Gaussians; and
-    the depths the colour test's contact check used.
-
-    ``contact``: the previous pass's; the colour test then accepts contact with the farther
-    of the two surfaces (a fuller reference blends the surface in front of an object's foot
-    into its pixels, a few percent nearer, and would drop the foot that still differs in
-    colour)."""
+    the reference being each view's exclusion render without the ``proposed`` Gaussians."""
     reference, reference_rgb = [], []
     for i in range(scene.num_views):
         others = proposed & ~own[i]
@@ -387,15 +386,28 @@ def _static_revealing(scene, index, views, excl, own, proposed, images, radii, c
     if radii != 0:
         reference, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
                                                                     radii)
-    if contact is not None:
-        contact = [np.maximum(a, b) for a, b in zip(contact, reference)]
-    else:
-        contact = reference
     return revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                reference_rgbs=reference_rgb,
                                color_threshold=config.refine_color, images=images,
                                align_scale=config.depth_scale_align,
-                               reference_rgbs_hi=reference_hi, contact_depths=contact), contact
+                               reference_rgbs_hi=reference_hi)
+
+
+def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,
+                    revealing: np.ndarray, proposal, tau2) -> np.ndarray:
+    """``pixels`` with every 8-connected component that it touches of the view's pixels whose
+    Gaussians stand in front of the static reference, within the cells of similarity below
+    tau2 (``expand_connected``); ``labels`` caches the components per view."""
+    if view not in labels:
+        from scipy import ndimage       # only where the option is on: a cheaper import
+        grow = pixels_of(scene, index, view, revealing)
+        h, w = grow.shape
+        grow &= upsample_nearest(proposal.similarity < tau2, h, w)
+        labels[view] = ndimage.label(grow, structure=np.ones((3, 3), bool))[0]
+    lab = labels[view]
+    touched = np.unique(lab[pixels])
+    touched = touched[touched > 0]
+    return pixels | np.isin(lab, touched) if touched.size else pixels
 
 
 def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:
