@@ -226,6 +226,12 @@ class FilterConfig:
         tests at the Gaussian's own pixel. ``"auto"``: per view, the misregistration measured
         between its input and its exclusion render
         (:func:`clearsplat.filter.robust.misregistration`; 0 where the views agree).
+    refine_tolerance_depth : bool
+        Whether ``refine_tolerance`` applies to the depth test too (the nearest surface within
+        the radius). False: only the colour test is tolerant and "in front" is judged at the
+        Gaussian's own pixel: the nearest surface within a few pixels of a small object on a
+        sloping floor is the floor in front of it, so the tolerant depth test drops most of
+        such an object.
     min_relative_score : float
         Also require each test's removal to take away more than this share of the
         change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
@@ -283,6 +289,7 @@ class FilterConfig:
     min_relative_score: float = 0.0
     refine_passes: int = 2
     expand_connected: bool = False
+    refine_tolerance_depth: bool = True
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -377,6 +384,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
+    "refine_tolerance_depth": FieldSpec("bool"),
 }
 
 

@@ -384,8 +384,10 @@ def _static_revealing(scene, index, views, excl, own, proposed, images, radii, c
         reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
     reference_hi = None
     if radii != 0:
-        reference, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
-                                                                    radii)
+        nearest, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
+                                                                  radii)
+        if config.refine_tolerance_depth:
+            reference = nearest
     return revealing_gaussians(scene, index, reference, margin=config.refine_margin,
                                reference_rgbs=reference_rgb,
                                color_threshold=config.refine_color, images=images,
