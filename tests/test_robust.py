@@ -15,7 +15,8 @@ from clearsplat.synth import make_world
 from clearsplat.synth.realism import realistic_reconstruction
 
 NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
-           refine_tolerance=2, min_relative_score=0.3, refine_passes=2)
+           refine_tolerance=2, min_relative_score=0.3, refine_passes=2, expand_connected=True,
+           refine_tolerance_depth=False)
 
 
 def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
@@ -134,6 +135,7 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         assert cfg.verify_tolerance == 0 and cfg.refine_tolerance == 0
         assert cfg.min_relative_score == 0.0
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
+        assert not cfg.expand_connected and cfg.refine_tolerance_depth
     for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
                        ("verify_tolerance", True), ("min_relative_score", 1.0),
                        ("min_relative_score", -0.1), ("refine_passes", 0),
@@ -153,7 +155,8 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     scene, _ = soft_scene
     ex = get_extractor("local")
     off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
-               refine_tolerance=0, min_relative_score=0.0, refine_passes=1)
+               refine_tolerance=0, min_relative_score=0.0, refine_passes=1,
+               expand_connected=False, refine_tolerance_depth=True)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -170,7 +173,10 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
                                                          refine_tolerance=0,
                                                          depth_scale_align=False,
                                                          photometric_align=False,
-                                                         refine_passes=1), extractor=ex)
+                                                         refine_passes=1,
+                                                         expand_connected=False,
+                                                         refine_tolerance_depth=True),
+                              extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
                              extractor=ex)
     assert res.keep.shape == base.keep.shape
@@ -225,3 +231,72 @@ def test_config_specs_read_values_with_a_plus():
     assert parse_config("paper-local") == FilterConfig.preset("paper-local")
     with pytest.raises(ClearsplatError):
         parse_config("default+revealing")
+
+
+def test_grow_connected_adds_the_touched_in_front_groups_of_low_similarity():
+    from types import SimpleNamespace
+    from clearsplat import Camera, Gaussians, Scene
+    from clearsplat.filter.pipeline import _grow_connected
+    h, w = 8, 8
+    n = h * w
+    cam = Camera(np.array([[8.0, 0, 4], [0, 8.0, 4], [0, 0, 1]]), np.eye(4), w, h)
+    g = Gaussians(means=np.zeros((n, 3), np.float32), scales=np.full((n, 3), 0.01, np.float32),
+                  quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+                  opacities=np.full(n, 0.9, np.float32), sh=np.zeros((n, 1, 3), np.float32))
+    scene = Scene(g, view_id=np.zeros(n, np.int32), pixel_id=np.arange(n), cameras=[cam],
+                  images=[np.zeros((h, w, 3), np.float32)])
+    index = ViewIndex(scene)
+    front = np.zeros((h, w), bool)
+    front[1:3, 1:6] = True          # a group touching the region
+    front[6:8, 6:8] = True          # a group apart
+    similarity = np.zeros((2, 2), np.float32)
+    similarity[0, 1] = 0.9          # the top right cell is similar: no growth there
+    proposal = SimpleNamespace(similarity=similarity)
+    region = np.zeros((h, w), bool)
+    region[2, 1] = True
+    out = _grow_connected(region, 0, {}, scene, index, front.ravel(), proposal, 0.69)
+    expected = region.copy()
+    expected[1:3, 1:4] = True       # the touched group, cut at the similar cell
+    np.testing.assert_array_equal(out, expected)
+    # a region touching nothing in front stays as it is
+    lone = np.zeros((h, w), bool)
+    lone[5, 0] = True
+    np.testing.assert_array_equal(_grow_connected(lone, 0, {}, scene, index, front.ravel(),
+                                                  proposal, 0.69), lone)
+
+
+def test_expand_connected_only_adds_to_the_expansion(soft_scene):
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    on = filter_distractors(scene, config=FilterConfig(expand_connected=True), extractor=ex)
+    off = filter_distractors(scene, config=FilterConfig(expand_connected=False), extractor=ex)
+    assert [c.scores.get("individual") for c in on.candidates] == \
+        [c.scores.get("individual") for c in off.candidates]
+    for a, b in zip(on.candidates, off.candidates):
+        if b.expanded is not None:
+            assert set(b.expanded) <= set(a.expanded)
+    assert any(c.expanded is not None for c in off.candidates)
+
+
+def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):
+    """Where the reference has no holes the nearest surface within the radius is never farther
+    than the one at the pixel, so judging depth at the pixel (``refine_tolerance_depth=False``)
+    keeps every Gaussian the tolerant depth test keeps, and more."""
+    world = make_world("object", num_views=3, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "depth", seed=0, clean=True)
+    index = ViewIndex(scene)
+    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
+    assert all((d > 0).all() for d in ref)
+    rgb = [np.asarray(im, np.float64) for im in world.clean_images]
+    near, lo, hi = tolerant_reference(ref, rgb, 3)
+    kw = dict(margin=0.02, reference_rgbs=lo, reference_rgbs_hi=hi, color_threshold=0.5)
+    tol = revealing_gaussians(scene, index, near, **kw)
+    own = revealing_gaussians(scene, index, ref, **kw)
+    assert not (tol & ~own).any() and (own & ~tol).sum() > 0
+    # Without a radius the option changes nothing.
+    s, _ = soft_scene
+    ex = get_extractor("local")
+    cfg = FilterConfig(refine_tolerance=0)
+    a = filter_distractors(s, config=cfg.replace(refine_tolerance_depth=True), extractor=ex)
+    b = filter_distractors(s, config=cfg.replace(refine_tolerance_depth=False), extractor=ex)
+    np.testing.assert_array_equal(a.keep, b.keep)

@@ -47,6 +47,8 @@ ABLATIONS = {
     "no-depth-scale": "default+depth_scale_align=false",
     "one-refine-pass": "default+refine_passes=1",
     "mask-proposals": "default+verify_mask=proposals+revealing",
+    "no-expand-conn": "default+expand_connected=false",
+    "tol-depth": "default+refine_tolerance_depth=true",
     "+photo-align": "default+photometric_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",

@@ -288,8 +288,8 @@ class FilterConfig:
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.0
     refine_passes: int = 2
-    expand_connected: bool = False
-    refine_tolerance_depth: bool = True
+    expand_connected: bool = True
+    refine_tolerance_depth: bool = False
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -397,12 +397,12 @@ PRESETS = {
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
                           verify_tolerance=0, refine_tolerance=0,
                           min_relative_score=0.0, refine_passes=1,
-                          expand_connected=False),
+                          expand_connected=False, refine_tolerance_depth=True),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
                                 verify_tolerance=0, refine_tolerance=0,
                                 min_relative_score=0.0, refine_passes=1,
-                                expand_connected=False),
+                                expand_connected=False, refine_tolerance_depth=True),
 }
