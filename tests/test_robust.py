@@ -16,7 +16,7 @@ from clearsplat.synth.realism import realistic_reconstruction
 
 NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
            refine_tolerance=2, min_relative_score=0.3, refine_passes=2, expand_connected=True,
-           refine_tolerance_depth=False)
+           refine_tolerance_depth=False, depth_scale_reach=3)
 
 
 def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
@@ -136,6 +136,7 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         assert cfg.min_relative_score == 0.0
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
         assert not cfg.expand_connected and cfg.refine_tolerance_depth
+        assert cfg.depth_scale_reach == 0
     for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
                        ("verify_tolerance", True), ("min_relative_score", 1.0),
                        ("min_relative_score", -0.1), ("refine_passes", 0),
@@ -156,7 +157,7 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     ex = get_extractor("local")
     off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
                refine_tolerance=0, min_relative_score=0.0, refine_passes=1,
-               expand_connected=False, refine_tolerance_depth=True)
+               expand_connected=False, refine_tolerance_depth=True, depth_scale_reach=0)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -300,3 +301,32 @@ def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):
     a = filter_distractors(s, config=cfg.replace(refine_tolerance_depth=True), extractor=ex)
     b = filter_distractors(s, config=cfg.replace(refine_tolerance_depth=False), extractor=ex)
     np.testing.assert_array_equal(a.keep, b.keep)
+
+
+def test_local_depth_scales_follow_a_slow_ramp_and_ignore_a_small_object():
+    from clearsplat.filter.robust import local_depth_scales
+    h, w = 64, 128
+    yy, xx = np.mgrid[0:h, 0:w]
+    ref = np.full((h, w), 4.0)
+    true_scale = np.exp(0.1 * xx / w)                  # 0-10 % too far, slowly across the view
+    own = ref * true_scale
+    obj = (abs(yy - 30) < 5) & (abs(xx - 60) < 5)      # a small object 30 % in front
+    own[obj] *= 0.7
+    pix = (yy * w + xx).ravel()
+    scale, spread = local_depth_scales(own.ravel(), ref.ravel(), pix, h, w, reach=1)
+    # the ramp is followed to within a cell's worth of it, the object does not move the scale
+    assert np.abs(np.log(scale) - np.log(true_scale.ravel())).max() < 0.1 * 48 / w + 1e-9
+    aligned = own.ravel() / scale
+    assert (aligned[obj.ravel()] < 0.8 * ref.ravel()[obj.ravel()]).all()
+    assert spread < 0.02
+    # a constant ratio is the global median, and one scale per view is its special case
+    s2, sp2 = local_depth_scales(ref.ravel() * 1.05, ref.ravel(), pix, h, w, reach=2)
+    np.testing.assert_allclose(s2, 1.05)
+    assert sp2 == pytest.approx(0.0, abs=1e-12)
+    g, gs = view_depth_scales([ref.ravel() * 1.05], [ref.ravel()])[0]
+    assert g == pytest.approx(1.05)
+    # unknown pixels and empty references keep scale 1
+    bad = pix.copy()
+    bad[:10] = -1
+    s3, _ = local_depth_scales(own.ravel(), ref.ravel(), bad, h, w)
+    assert (s3[:10] == 1).all()

@@ -115,7 +115,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         margin: float, reference_rgbs: list[np.ndarray] | None = None,
                         color_threshold: float | None = None, images: list | None = None,
                         align_scale: bool = False,
-                        reference_rgbs_hi: list[np.ndarray] | None = None) -> np.ndarray:
+                        reference_rgbs_hi: list[np.ndarray] | None = None,
+                        scale_reach: int = 0) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -147,8 +148,12 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     reference_rgbs_hi : list of (H, W, 3) float, optional
         Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
         the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
+    scale_reach : int
+        With ``align_scale``: 0 divides each view's depths by one scale; k > 0 by the median
+        ratio within k 16-pixel cells around each Gaussian
+        (:func:`clearsplat.filter.robust.local_depth_scales`, ``FilterConfig.depth_scale_reach``).
     """
-    from .robust import view_depth_scales
+    from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
     out = np.zeros(len(scene), dtype=bool)
     for view, members in enumerate(index.members):
@@ -160,7 +165,13 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
         view_margin = margin
-        if align_scale:
+        if align_scale and scale_reach > 0:
+            cam = scene.cameras[view]
+            scale, spread = local_depth_scales(z, behind, pix, cam.height, cam.width,
+                                               reach=scale_reach)
+            z = z / scale
+            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        elif align_scale:
             scale, spread = view_depth_scales([z], [behind])[0]
             z = z / scale
             # "In front" beyond this view's own depth noise, not only beyond the fixed margin.

@@ -214,6 +214,11 @@ class FilterConfig:
         depths divided by their median ratio to the static reference first, and the margin
         widened to 2.5 robust standard deviations of that ratio where the view's depths are
         noisier. False: the paper.
+    depth_scale_reach : int
+        With ``depth_scale_align``: 0 uses one scale per view; k > 0 the median depth ratio
+        within k 16-pixel cells around each Gaussian (:func:`clearsplat.filter.robust.
+        local_depth_scales`), which follows low-frequency depth errors and so leaves a smaller
+        spread to widen the margin by.
     verify_tolerance : int
         Radius in pixels: a verification error counts only the distance of a render colour to the
         range of the input colours within this radius (0: the plain L1 error, the paper), so that
@@ -290,6 +295,7 @@ class FilterConfig:
     refine_passes: int = 2
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
+    depth_scale_reach: int = 0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -385,6 +391,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
+    "depth_scale_reach": FieldSpec("integer", 0),
 }
 
 
@@ -397,12 +404,14 @@ PRESETS = {
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
                           verify_tolerance=0, refine_tolerance=0,
                           min_relative_score=0.0, refine_passes=1,
-                          expand_connected=False, refine_tolerance_depth=True),
+                          expand_connected=False, refine_tolerance_depth=True,
+                          depth_scale_reach=0),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
                                 verify_tolerance=0, refine_tolerance=0,
                                 min_relative_score=0.0, refine_passes=1,
-                                expand_connected=False, refine_tolerance_depth=True),
+                                expand_connected=False, refine_tolerance_depth=True,
+                                depth_scale_reach=0),
 }

@@ -273,7 +273,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     if config.refine == "depth":
         revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
                                         margin=config.refine_margin,
-                                        align_scale=config.depth_scale_align)
+                                        align_scale=config.depth_scale_align,
+                                        scale_reach=config.depth_scale_reach)
     elif config.refine == "static-depth":
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
@@ -392,7 +393,8 @@ def _static_revealing(scene, index, views, excl, own, proposed, images, radii, c
                                reference_rgbs=reference_rgb,
                                color_threshold=config.refine_color, images=images,
                                align_scale=config.depth_scale_align,
-                               reference_rgbs_hi=reference_hi)
+                               reference_rgbs_hi=reference_hi,
+                               scale_reach=config.depth_scale_reach)
 
 
 def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,

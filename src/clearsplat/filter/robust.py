@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
-           "tolerant_reference", "misregistration"]
+           "tolerant_reference", "misregistration", "local_depth_scales"]
 
 #: Pixels used for a fit need the render this opaque.
 _FIT_MIN_ALPHA = 0.9
@@ -201,3 +201,60 @@ def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
         out_lo.append(np.where(missing, np.nan, lo))
         out_hi.append(np.where(missing, np.nan, hi))
     return out_d, out_lo, out_hi
+
+
+def local_depth_scales(own: np.ndarray, reference: np.ndarray, pixels: np.ndarray,
+                       height: int, width: int, *, cell: int = 16, reach: int = 2
+                       ) -> tuple[np.ndarray, float]:
+    """Per Gaussian, the median ratio of its view's depths to the reference depth around it,
+    and the spread of the ratio left after dividing by it.
+
+    Parameters
+    ----------
+    own, reference : (M,) float
+        Camera-i depth of each of view i's Gaussians and the reference depth at its pixel.
+    pixels : (M,) int
+        Its pixel (``row * width + col``), -1 where unknown.
+    height, width : int
+    cell : int
+        Side in pixels of the cells whose medians are taken first.
+    reach : int
+        The scale at a cell is the median of the cell medians within ``reach`` cells of it
+        (a window of ``(2 reach + 1) cell`` pixels, much larger than a distractor).
+
+    Returns
+    -------
+    scale : (M,) float
+        1 where nothing can be compared.
+    spread : float
+        Robust standard deviation (1.4826 MAD) of ``log(own / (scale * reference))``.
+    """
+    ok = (own > 0) & (reference > 0) & (pixels >= 0)
+    scale = np.ones(own.size)
+    if ok.sum() < _FIT_MIN_PIXELS:
+        return scale, 0.0
+    r = np.log(own[ok] / reference[ok])
+    gh, gw = -(-height // cell), -(-width // cell)
+    y, x = np.divmod(pixels[ok], width)
+    cid = (y // cell) * gw + x // cell
+    med = np.full(gh * gw, np.nan)
+    order = np.argsort(cid, kind="stable")
+    cs, rs = cid[order], r[order]
+    starts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+    ends = np.r_[starts[1:], cs.size]
+    for a, b in zip(starts, ends):
+        med[cs[a]] = np.median(rs[a:b])
+    med = med.reshape(gh, gw)
+    local = np.full((gh, gw), np.nan)
+    for cy in range(gh):
+        for cx in range(gw):
+            win = med[max(0, cy - reach):cy + reach + 1, max(0, cx - reach):cx + reach + 1]
+            win = win[np.isfinite(win)]
+            if win.size:
+                local[cy, cx] = np.median(win)
+    glob = float(np.median(r))
+    local = np.where(np.isfinite(local), local, glob)
+    s = local.ravel()[cid]
+    res = r - s
+    scale[ok] = np.exp(s)
+    return scale, float(1.4826 * np.median(np.abs(res - np.median(res))))
