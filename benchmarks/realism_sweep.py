@@ -8,6 +8,8 @@ removed.
 
     python benchmarks/realism_sweep.py --views 4 --realism pose,depth --families object \\
         default default+refine_tolerance=0
+
+``--real-check`` adds the real-image check (Middlebury pair) of each config.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ def main() -> None:
     ap.add_argument("--families", default="object,street")
     ap.add_argument("--resolution", default="256x448")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--real-check", action="store_true",
+                    help="also run the real-image check of each config")
     args = ap.parse_args()
     h, w = (int(x) for x in args.resolution.split("x"))
     for scenario in args.realism.split(","):
@@ -53,6 +57,9 @@ def main() -> None:
                       f"{q(clean, cr.keep) - clean_base:+.3f} removed "
                       f"{100 * cr.removed.mean():.2f}% [{time.perf_counter() - t0:.0f} s]",
                       flush=True)
+    if args.real_check:
+        from clearsplat.bench import format_real_checks, run_real_checks
+        print(format_real_checks(run_real_checks({c: parse_config(c) for c in args.configs})))
 
 
 if __name__ == "__main__":
