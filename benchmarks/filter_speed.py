@@ -6,6 +6,7 @@ Usage::
     python benchmarks/filter_speed.py --views 8 --repeats 5 --full-repeats 1
     python benchmarks/filter_speed.py --views 8,16,32 --resolution 128x224 --family street
     python benchmarks/filter_speed.py --views 64 --repeats 1 --full-repeats 0   # dense capture
+    python benchmarks/filter_speed.py --device cuda --views 4,8,16     # GPU, against the CPU
 
 Each view count runs in a fresh subprocess so that its peak resident memory is its own.
 Times are medians over ``--repeats`` runs of the default filter (incremental verification) and
@@ -36,7 +37,8 @@ import time
 
 
 def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
-          family: str, seed: int, view_memory: float | None, threads: int | None) -> dict:
+          family: str, seed: int, view_memory: float | None, threads: int | None,
+          device: str = "cpu") -> dict:
     import numpy as np
 
     from clearsplat._memory import estimate_filter_memory
@@ -51,8 +53,9 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     extractor = get_extractor("local")
     options = {f.name for f in dataclasses.fields(FilterConfig)}
     cfg = FilterConfig(num_threads=threads,
-                       **({"view_memory": view_memory} if "view_memory" in options else {}))
-    if views > 16:
+                       **({"view_memory": view_memory} if "view_memory" in options else {}),
+                       **({"device": device} if device != "cpu" else {}))
+    if views > 16 and device == "cpu":
         full_repeats = 0
 
     def run(config):
@@ -67,7 +70,9 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
                 "cpu": cpu}
 
     inc = [run(cfg) for _ in range(repeats)]
-    full = [run(cfg.replace(incremental=False)) for _ in range(full_repeats)]
+    # On a GPU the second set of runs is the CPU filter: the same decisions are expected.
+    other = cfg.replace(incremental=False) if device == "cpu" else cfg.replace(device="cpu")
+    full = [run(other) for _ in range(full_repeats)]
     same = all(np.array_equal(inc[0]["keep"], r["keep"]) for r in inc + full)
 
     def med(runs, key):
@@ -115,6 +120,9 @@ def main(argv=None) -> int:
     p.add_argument("--view-memory", default="2.0",
                    help="FilterConfig.view_memory in GB, or 'none' (default 2.0, the default)")
     p.add_argument("--threads", type=int, help="FilterConfig.num_threads (default: all cores)")
+    p.add_argument("--device", default="cpu",
+                   help="FilterConfig.device, e.g. cuda (then the --full-repeats runs are the "
+                        "CPU filter, and 'same output' compares the two)")
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -122,7 +130,7 @@ def main(argv=None) -> int:
     view_memory = None if args.view_memory.lower() == "none" else float(args.view_memory)
     if args._child:
         row = _case(int(args._child), h, w, args.repeats, args.full_repeats, args.family,
-                    args.seed, view_memory, args.threads)
+                    args.seed, view_memory, args.threads, args.device)
         print(json.dumps(row))
         return 0
     rows = []
@@ -133,13 +141,16 @@ def main(argv=None) -> int:
                "--seed", str(args.seed), "--view-memory", args.view_memory]
         if args.threads:
             cmd += ["--threads", str(args.threads)]
+        if args.device != "cpu":
+            cmd += ["--device", args.device]
         res = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
         print(f"  done: {v} views", file=sys.stderr)
     print(f"clearsplat filter speed — {args.family} scenes at {w}x{h}, "
           f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
           f"{os.getloadavg()[0]:.1f}; medians of {args.repeats} (incremental) / "
-          f"{args.full_repeats} (full) runs; view_memory {args.view_memory} GB")
+          f"{args.full_repeats} ({'full' if args.device == 'cpu' else 'CPU'}) runs; "
+          f"view_memory {args.view_memory} GB; device {args.device}")
     hdr = (f"{'views':>5} {'Gaussians':>10} {'cands':>6} {'proposal s':>10} {'verify s':>9} "
            f"{'total s':>8} {'min-max':>11} {'first':>6} {'full verify s':>13} {'speedup':>8} {'peak RSS GB':>11} "
            f"{'same output':>11}")
