@@ -177,6 +177,15 @@ void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                           depth.data(), threads(num_threads));
 }
 
+void live_entries(In<float> splats, In<int64_t> offsets, In<int32_t> lists, In<uint8_t> floor,
+                  int width, int height, Out<uint8_t> live, int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    require(int64_t(floor.size()) == v.num, "floor size");
+    require(int64_t(live.size()) == int64_t(lists.size()), "live size");
+    nb::gil_scoped_release release;
+    cs::live_entries(v, floor.data(), live.data(), threads(num_threads));
+}
+
 nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                         In<uint8_t> keep, In<uint8_t> mask, int width, int height,
                         int num_threads) {
@@ -218,6 +227,9 @@ NB_MODULE(_core, m) {
           "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
           "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place); "
           "with a base render (empty arrays: none) only the pixels the removal can change.");
+    m.def("live_entries", &live_entries, "splats"_a, "offsets"_a, "lists"_a, "floor"_a,
+          "width"_a, "height"_a, "live"_a, "num_threads"_a,
+          "Mark (in place) the tile-list entries a render of any superset of floor can use.");
     m.def("contributions", &contributions, "splats"_a, "offsets"_a, "lists"_a, "keep"_a,
           "mask"_a, "width"_a, "height"_a, "num_threads"_a,
           "Every added (pixel, id, weight) at the masked pixels.");
