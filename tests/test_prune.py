@@ -118,7 +118,7 @@ def test_pruning_drops_hidden_entries_and_guards_its_floor(street):
 @pytest.mark.parametrize("preset", ["default", "paper-local"])
 def test_filter_output_does_not_depend_on_pruning(street, preset):
     ex = get_extractor("local")
-    cfg = FilterConfig.preset(preset)
+    cfg = FilterConfig.preset(preset).replace(prune_views=True)
     a = filter_distractors(street, config=cfg, extractor=ex)
     b = filter_distractors(street, config=cfg.replace(prune_views=False), extractor=ex)
     c = filter_distractors(street, config=cfg.replace(view_memory=1e-6), extractor=ex)

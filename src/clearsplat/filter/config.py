@@ -203,8 +203,10 @@ class FilterConfig:
         Once the proposals are known, keep of each prepared input view (CPU) only the tile-list
         entries that a later render can reach: every later render of that camera keeps all
         Gaussians but the view's own and those of the proposed regions, so an entry behind
-        pixels that stop in front of it under those alone never changes one. Less memory and
-        less verification work; never changes the output.
+        pixels that stop in front of it under those alone never changes one. Never changes the
+        output. Off by default: on the stand-in scenes the proposals cover about half of every
+        image, so little can be pruned and the pruning pass costs more than it saves
+        (``docs/benchmarks.md``, "Dense captures").
     photometric_align : bool
         Map each input image per channel (affine, robust fit) to the colours the other views
         render there before the similarity, the colour test of ``refine_color`` and the
@@ -261,7 +263,7 @@ class FilterConfig:
     incremental: bool = True
     num_threads: int | None = None
     view_memory: float | None = 2.0
-    prune_views: bool = True
+    prune_views: bool = False
     device: str = "cpu"
     photometric_align: bool = False
     depth_scale_align: bool = False
