@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/filter_identity.py --save ref/      # record today's outputs
     python benchmarks/filter_identity.py --check ref/     # after a change: compare
+    python benchmarks/filter_identity.py --check ref/ --set prune_views=true   # an option
 
 Runs ``filter_distractors`` on the stand-in scenes (object and street, 4, 8 and 16 views, at
 128x224 and 256x448; the default, ``paper-local`` and non-incremental configurations) and
@@ -29,16 +30,21 @@ def _cases(quick: bool):
                 yield family, views, h, w
 
 
-def _config(name: str):
+def _config(name: str, overrides=()):
     from clearsplat.filter import FilterConfig
     if name == "default":
-        return FilterConfig()
-    if name == "paper-local":
-        return FilterConfig.preset("paper-local")
-    return FilterConfig(incremental=False)
+        cfg = FilterConfig()
+    elif name == "paper-local":
+        cfg = FilterConfig.preset("paper-local")
+    else:
+        cfg = FilterConfig(incremental=False)
+    for item in overrides:   # KEY=VALUE, VALUE as JSON
+        key, _, value = item.partition("=")
+        cfg = cfg.replace(**{key: json.loads(value)})
+    return cfg
 
 
-def _run(family: str, views: int, h: int, w: int, configs) -> dict:
+def _run(family: str, views: int, h: int, w: int, configs, overrides=()) -> dict:
     import numpy as np
 
     from clearsplat.features import get_extractor
@@ -50,10 +56,12 @@ def _run(family: str, views: int, h: int, w: int, configs) -> dict:
     extractor = get_extractor("local")
     out = {}
     for name in configs:
-        r = filter_distractors(scene, config=_config(name), extractor=extractor)
+        r = filter_distractors(scene, config=_config(name, overrides), extractor=extractor)
         s = r.summary()
         s.pop("timings")
         s["config"].pop("incremental")
+        for item in overrides:   # options that must not change the output are not compared
+            s["config"].pop(item.partition("=")[0], None)
         out[name] = {"removed": np.flatnonzero(r.removed).tolist(), "summary": s}
     return out
 
@@ -64,6 +72,9 @@ def main(argv=None) -> int:
     g.add_argument("--save", metavar="DIR")
     g.add_argument("--check", metavar="DIR")
     p.add_argument("--quick", action="store_true", help="128x224 only")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a FilterConfig field for every configuration (an option that must not "
+                        "change the output), VALUE as JSON")
     p.add_argument("--no-full", action="store_true",
                    help="skip the non-incremental configuration (slow at 16 views)")
     args = p.parse_args(argv)
@@ -74,7 +85,7 @@ def main(argv=None) -> int:
     for family, views, h, w in _cases(args.quick):
         name = f"{family}-{views}v-{h}x{w}"
         path = os.path.join(folder, name + ".json")
-        got = _run(family, views, h, w, configs)
+        got = _run(family, views, h, w, configs, tuple(args.set))
         if args.save:
             with open(path, "w") as f:
                 json.dump(got, f)

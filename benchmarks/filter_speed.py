@@ -6,6 +6,7 @@ Usage::
     python benchmarks/filter_speed.py --views 8 --repeats 5 --full-repeats 1
     python benchmarks/filter_speed.py --views 8,16,32 --resolution 128x224 --family street
     python benchmarks/filter_speed.py --views 64 --repeats 1 --full-repeats 0   # dense capture
+    python benchmarks/filter_speed.py --device cuda --views 4,8,16     # GPU, against the CPU
 
 Each view count runs in a fresh subprocess so that its peak resident memory is its own.
 Times are medians over ``--repeats`` runs of the default filter (incremental verification) and
@@ -36,7 +37,8 @@ import time
 
 
 def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
-          family: str, seed: int, view_memory: float | None, threads: int | None) -> dict:
+          family: str, seed: int, view_memory: float | None, threads: int | None,
+          device: str = "cpu", overrides: tuple = ()) -> dict:
     import numpy as np
 
     from clearsplat._memory import estimate_filter_memory
@@ -51,8 +53,12 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     extractor = get_extractor("local")
     options = {f.name for f in dataclasses.fields(FilterConfig)}
     cfg = FilterConfig(num_threads=threads,
-                       **({"view_memory": view_memory} if "view_memory" in options else {}))
-    if views > 16:
+                       **({"view_memory": view_memory} if "view_memory" in options else {}),
+                       **({"device": device} if device != "cpu" else {}))
+    for item in overrides:   # --set KEY=VALUE, as the command line's
+        key, _, value = item.partition("=")
+        cfg = cfg.replace(**{key: json.loads(value)})
+    if views > 16 and device == "cpu":
         full_repeats = 0
 
     def run(config):
@@ -67,7 +73,9 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
                 "cpu": cpu}
 
     inc = [run(cfg) for _ in range(repeats)]
-    full = [run(cfg.replace(incremental=False)) for _ in range(full_repeats)]
+    # On a GPU the second set of runs is the CPU filter: the same decisions are expected.
+    other = cfg.replace(incremental=False) if device == "cpu" else cfg.replace(device="cpu")
+    full = [run(other) for _ in range(full_repeats)]
     same = all(np.array_equal(inc[0]["keep"], r["keep"]) for r in inc + full)
 
     def med(runs, key):
@@ -90,6 +98,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "views_prepared": inc[0]["stats"].get("views_prepared", 0),
         "views_skipped": inc[0]["stats"].get("views_skipped", 0),
         "views_peak_gb": inc[0]["stats"].get("views_peak_bytes", 0) / 1e9,
+        "views_pruned_gb": inc[0]["stats"].get("views_pruned_bytes", 0) / 1e9,
         "view_memory": view_memory,
         "memory_estimate_gb": estimate_filter_memory(
             len(scene), scene.cameras,
@@ -115,6 +124,11 @@ def main(argv=None) -> int:
     p.add_argument("--view-memory", default="2.0",
                    help="FilterConfig.view_memory in GB, or 'none' (default 2.0, the default)")
     p.add_argument("--threads", type=int, help="FilterConfig.num_threads (default: all cores)")
+    p.add_argument("--device", default="cpu",
+                   help="FilterConfig.device, e.g. cuda (then the --full-repeats runs are the "
+                        "CPU filter, and 'same output' compares the two)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a FilterConfig field for every run, VALUE as JSON (e.g. prune_views=false)")
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -122,7 +136,7 @@ def main(argv=None) -> int:
     view_memory = None if args.view_memory.lower() == "none" else float(args.view_memory)
     if args._child:
         row = _case(int(args._child), h, w, args.repeats, args.full_repeats, args.family,
-                    args.seed, view_memory, args.threads)
+                    args.seed, view_memory, args.threads, args.device, tuple(args.set))
         print(json.dumps(row))
         return 0
     rows = []
@@ -133,13 +147,19 @@ def main(argv=None) -> int:
                "--seed", str(args.seed), "--view-memory", args.view_memory]
         if args.threads:
             cmd += ["--threads", str(args.threads)]
+        if args.device != "cpu":
+            cmd += ["--device", args.device]
+        for item in args.set:
+            cmd += ["--set", item]
         res = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
         print(f"  done: {v} views", file=sys.stderr)
     print(f"clearsplat filter speed — {args.family} scenes at {w}x{h}, "
           f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
           f"{os.getloadavg()[0]:.1f}; medians of {args.repeats} (incremental) / "
-          f"{args.full_repeats} (full) runs; view_memory {args.view_memory} GB")
+          f"{args.full_repeats} ({'full' if args.device == 'cpu' else 'CPU'}) runs; "
+          f"view_memory {args.view_memory} GB; device {args.device}"
+          + "".join(f"; {item}" for item in args.set))
     hdr = (f"{'views':>5} {'Gaussians':>10} {'cands':>6} {'proposal s':>10} {'verify s':>9} "
            f"{'total s':>8} {'min-max':>11} {'first':>6} {'full verify s':>13} {'speedup':>8} {'peak RSS GB':>11} "
            f"{'same output':>11}")
@@ -154,13 +174,13 @@ def main(argv=None) -> int:
               f"{str(r['identical_output']):>11}")
     base = next((r for r in rows if r["views"] == 8), rows[0])
     print(f"\n{'views':>5} {'CPU s':>7} {'x CPU':>6} {'x time':>7} {'x peak':>7} "
-          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'estimate GB':>12}   "
+          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'pruned GB':>10} {'estimate GB':>12}   "
           f"(x: against {base['views']} views)")
     for r in rows:
         print(f"{r['views']:>5} {r['cpu_s']:>7.2f} {r['cpu_s'] / base['cpu_s']:>6.2f} "
               f"{r['total_s'] / base['total_s']:>7.2f} "
               f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
-              f"{r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} "
+              f"{r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} {r['views_pruned_gb']:>10.2f} "
               f"{r['memory_estimate_gb']:>12.2f}")
     steps = list(dict.fromkeys(k for r in rows for k in r["steps"]))
     print("\nwhere the time goes (seconds, medians):")

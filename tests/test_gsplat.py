@@ -79,8 +79,14 @@ def _assert_close(out, cpu):
     assert np.abs(cpu.rgb - out.rgb).mean() < 1e-3
     assert np.abs(cpu.rgb - out.rgb).max() < 2e-2
     assert np.abs(cpu.alpha - out.alpha).max() < 2e-2
-    covered = (cpu.alpha > 0.5) & (out.alpha > 0.5)
-    assert np.abs(cpu.depth - out.depth)[covered].max() < 1e-2
+    # Depth is the ratio of two accumulated sums, D / alpha: compare D = depth * alpha like the
+    # colours (same tolerances), relative to the depth scale. The ratio itself moves by about
+    # the depth spread times the alpha difference over alpha (an H100 run: 0.012 at a pixel
+    # with alpha 0.58 and an alpha difference of 0.0016).
+    scale = float(np.median(cpu.depth[cpu.alpha > 0.5]))
+    weighted = np.abs(cpu.depth * cpu.alpha - out.depth * out.alpha)
+    assert weighted.mean() < 1e-3 * scale
+    assert weighted.max() < 2e-2 * scale
 
 
 @pytest.mark.parametrize("sh_degree", [0, 3])

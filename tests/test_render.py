@@ -637,3 +637,19 @@ def test_filter_and_report_render_with_the_scene_settings(tmp_path, monkeypatch)
     result = filter_distractors(scene, config=FilterConfig(), extractor=get_extractor("local"))
     write_report(str(tmp_path), scene, result)
     assert len(used) >= scene.num_views and all(s == AA for s in used)
+
+
+def test_take_mask_equals_numpy_take():
+    from clearsplat.render import _kernels
+    rng = np.random.default_rng(2)
+    for n, v in ((1, 1), (10, 0), (1000, 700), (100_000, 100_000)):
+        mask = rng.uniform(size=n) < 0.5
+        index = rng.integers(0, n, v).astype(np.int32)
+        for threads in (1, 2):
+            got = _kernels.take_mask(mask, index, threads)
+            assert got.dtype == np.bool_
+            np.testing.assert_array_equal(got, np.take(mask, index))
+    with pytest.raises(ValueError, match="out of range"):
+        _kernels.take_mask(np.ones(5, bool), np.array([0, 5], np.int32), 1)
+    with pytest.raises(ValueError, match="out of range"):
+        _kernels.take_mask(np.ones(5, bool), np.array([-1], np.int32), 1)

@@ -5,7 +5,9 @@
 #include <nanobind/ndarray.h>
 #include <omp.h>
 
+#include <algorithm>
 #include <cstdlib>
+#include <new>
 #include <stdexcept>
 #include <string>
 
@@ -177,6 +179,15 @@ void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                           depth.data(), threads(num_threads));
 }
 
+void live_entries(In<float> splats, In<int64_t> offsets, In<int32_t> lists, In<uint8_t> floor,
+                  int width, int height, Out<uint8_t> live, int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    require(int64_t(floor.size()) == v.num, "floor size");
+    require(int64_t(live.size()) == int64_t(lists.size()), "live size");
+    nb::gil_scoped_release release;
+    cs::live_entries(v, floor.data(), live.data(), threads(num_threads));
+}
+
 nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                         In<uint8_t> keep, In<uint8_t> mask, int width, int height,
                         int num_threads) {
@@ -189,6 +200,32 @@ nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists
     }
     const size_t m = size_t(r.num);
     return nb::make_tuple(owned(r.pixel, {m}), owned(r.id, {m}), owned(r.weight, {m}));
+}
+
+// out[i] = mask[index[i]]: a (N,) mask over the visible Gaussians of a view, in parallel and
+// without widening the int32 indices first.
+nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index, int num_threads) {
+    const int64_t n = int64_t(mask.size()), v = int64_t(index.size());
+    uint8_t* out = static_cast<uint8_t*>(std::malloc(size_t(std::max<int64_t>(v, 1))));
+    if (!out) throw std::bad_alloc();
+    const uint8_t* m = mask.data();
+    const int32_t* idx = index.data();
+    int64_t bad = 0;
+    {
+        nb::gil_scoped_release release;
+#pragma omp parallel for schedule(static) num_threads(threads(num_threads)) reduction(+ : bad)
+        for (int64_t i = 0; i < v; ++i) {
+            const int32_t k = idx[i];
+            const bool ok = k >= 0 && int64_t(k) < n;
+            out[i] = ok ? m[k] : 0;
+            bad += !ok;
+        }
+    }
+    if (bad) {
+        std::free(out);
+        require(false, "index out of range");
+    }
+    return owned(out, {size_t(v)});
 }
 
 }  // namespace
@@ -218,6 +255,11 @@ NB_MODULE(_core, m) {
           "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
           "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place); "
           "with a base render (empty arrays: none) only the pixels the removal can change.");
+    m.def("take_mask", &take_mask, "mask"_a, "index"_a, "num_threads"_a,
+          "mask[index] as uint8 (a keep mask over a view's visible Gaussians).");
+    m.def("live_entries", &live_entries, "splats"_a, "offsets"_a, "lists"_a, "floor"_a,
+          "width"_a, "height"_a, "live"_a, "num_threads"_a,
+          "Mark (in place) the tile-list entries a render of any superset of floor can use.");
     m.def("contributions", &contributions, "splats"_a, "offsets"_a, "lists"_a, "keep"_a,
           "mask"_a, "width"_a, "height"_a, "num_threads"_a,
           "Every added (pixel, id, weight) at the masked pixels.");

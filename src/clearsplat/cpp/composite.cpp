@@ -177,6 +177,52 @@ void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
     }
 }
 
+// Marks the entries of one tile's list that a render of any subset containing `floor` can
+// use: live[k] = 1 where entry k, reached in front-to-back order, has alpha >= 1/255 (and
+// power <= 0) at a pixel of its box that has not stopped under `floor` alone. The state
+// composites only the Gaussians in `floor`, exactly as composite_tile does. A superset of
+// `floor` multiplies in more factors 1 - alpha <= 1, so its transmittance is never higher at
+// any point of the list (rounding is monotone) and a pixel stopped under `floor` has stopped
+// under it too, at the same entry or before: an entry not marked never changes such a render.
+CS_TARGET_CLONES
+void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, uint8_t* live) {
+    const int32_t* list = v.tile_lists + v.tile_offsets[tile];
+    const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
+    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
+    int64_t k = 0;
+    for (; k < len && s.remaining > 0; ++k) {
+        if (k + kPrefetch < len) prefetch_splat(v.splats + list[k + kPrefetch]);
+        const int32_t id = list[k];
+        const bool in_floor = floor[id] != 0;
+        const Splat& gs = v.splats[id];
+        const int lx0 = std::max(int(gs.bx0) - s.x0, 0), lx1 = std::min(int(gs.bx1) - s.x0, s.w - 1);
+        const int ly0 = std::max(int(gs.by0) - s.y0, 0), ly1 = std::min(int(gs.by1) - s.y0, s.h - 1);
+        bool used = false;
+        for (int ly = ly0; ly <= ly1; ++ly) {
+            const float dy = gs.v - (float(s.y0 + ly) + 0.5f);
+            for (int start = lx0; start <= lx1; start += 8) {
+                const int base = std::min(start, kTile - 8);
+                const int p = ly * kTile + base;
+                const i8 col = iota + base;
+                const i8 done = load(s.done + p);
+                i8 active = (col >= start) & (col <= lx1) & ~done;
+                if (!any(active)) continue;
+                const f8 dx = gs.u - (__builtin_convertvector(col + s.x0, f8) + 0.5f);
+                const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
+                active &= power <= 0.0f;
+                f8 alpha = gs.opacity * exp_nonpositive(power);
+                alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
+                active &= alpha >= kMinAlpha;
+                if (!any(active)) continue;
+                used = true;
+                if (in_floor) accumulate(s, p, done, active, alpha, gs, id, nullptr);
+            }
+        }
+        live[k] = used ? 1 : 0;
+    }
+    for (; k < len; ++k) live[k] = 0;  // every pixel of the tile has stopped
+}
+
 // Writes pixel p of the tile state: rgb = C + T bg, alpha = 1 - T, depth = D / alpha.
 inline void finish_pixel(const TileState& s, int p, const float bg[3], float* rgb, float* alpha,
                          float* depth) {
@@ -309,6 +355,18 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
                     palpha[p] = pdepth[p] = 0.0f;
                 }
             }
+        }
+    }
+}
+
+void live_entries(const ViewData& v, const uint8_t* floor, uint8_t* live, int num_threads) {
+#pragma omp parallel num_threads(num_threads)
+    {
+        TileState s;
+#pragma omp for schedule(dynamic, 1)
+        for (int tile = 0; tile < v.num_tiles(); ++tile) {
+            s.reset(v, tile, nullptr);
+            mark_tile(v, tile, floor, s, live + v.tile_offsets[tile]);
         }
     }
 }

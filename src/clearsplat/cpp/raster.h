@@ -119,6 +119,11 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
                        const float* base_alpha, const float* base_depth, float* rgb,
                        float* alpha, float* depth, int num_threads);
 
+// live (P,): 1 for the tile-list entries that some render of a subset containing floor
+// (V,) can use, 0 for those it never reaches (every pixel of their box stopped before them, or
+// alpha below 1/255 there); a view without the 0 entries renders such subsets identically.
+void live_entries(const ViewData& v, const uint8_t* floor, uint8_t* live, int num_threads);
+
 // Every (pixel, id, weight) the compositing adds at the masked pixels (malloc'ed, ordered by
 // pixel then front to back).
 struct ContribResult {

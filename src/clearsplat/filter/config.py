@@ -204,6 +204,14 @@ class FilterConfig:
         GB the prepared input views may hold at once on the CPU (about 60 bytes per Gaussian
         each camera sees); views beyond it are prepared again when read, which costs time but
         never changes the output. None: no limit.
+    prune_views : bool
+        Once the proposals are known, keep of each prepared input view (CPU) only the tile-list
+        entries that a later render can reach: every later render of that camera keeps all
+        Gaussians but the view's own and those of the proposed regions, so an entry behind
+        pixels that stop in front of it under those alone never changes one. Never changes the
+        output. Off by default: on the stand-in scenes the proposals cover about half of every
+        image, so little can be pruned and the pruning pass costs more than it saves
+        (``docs/benchmarks.md``, "Dense captures").
     photometric_align : bool
         Map each input image per channel (affine, robust fit) to the colours the other views
         render there before the similarity, the colour test of ``refine_color`` and the
@@ -286,6 +294,7 @@ class FilterConfig:
     incremental: bool = True
     num_threads: int | None = None
     view_memory: float | None = 2.0
+    prune_views: bool = False
     device: str = "cpu"
     photometric_align: bool = False
     depth_scale_align: bool = True
@@ -382,6 +391,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "incremental": FieldSpec("bool"),
     "num_threads": FieldSpec("integer", 1, optional=True),
     "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
+    "prune_views": FieldSpec("bool"),
     "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
     "photometric_align": FieldSpec("bool"),
     "depth_scale_align": FieldSpec("bool"),

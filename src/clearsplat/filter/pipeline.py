@@ -269,6 +269,15 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     regions = [r for prop in proposals for r in prop.regions]
     raw = [region_to_gaussians(r.view, r.pixels) for r in regions]
     lap("regions")
+    if isinstance(views, PreparedViews) and config.prune_views:
+        # Every later render of camera j keeps all Gaussians but view j's own and those any
+        # candidate (or its expansion) can take away: the views keep only what such renders
+        # can reach. Views without pixel ids keep everything (their association composites
+        # the view's own Gaussians alone).
+        removable = _removable(proposals, region_to_gaussians, n, config.dilation,
+                               tau2 if config.expand_connected else None)
+        views.prune(lambda j: None if loose[j] else ~(own[j] | removable))
+        lap("prune")
     revealing = None
     if config.refine == "depth":
         revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
@@ -357,7 +366,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     stats = {}
     if isinstance(views, PreparedViews):
         stats = {"views_prepared": views.prepared, "views_peak_bytes": views.peak_bytes,
-                 "views_skipped": views.skipped}
+                 "views_skipped": views.skipped, "views_pruned_bytes": views.pruned_bytes}
         views.release()
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, config, stats=stats)
@@ -412,6 +421,23 @@ def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,
     touched = np.unique(lab[pixels])
     touched = touched[touched > 0]
     return pixels | np.isin(lab, touched) if touched.size else pixels
+
+
+def _removable(proposals, region_to_gaussians, n: int, dilation: float,
+               grow_below: float | None = None) -> np.ndarray:
+    """(N,) bool: every Gaussian a candidate or its expansion can hold, i.e. those the
+    regions of each view map to, dilated within the support as expansion does, and with
+    ``grow_below`` (``expand_connected``) those of every cell of similarity below it."""
+    out = np.zeros(n, dtype=bool)
+    for p in proposals:
+        proposed = p.mask1 | p.mask2
+        if proposed.any():
+            pixels = (dilate(proposed, dilation) & p.support_pixels) | proposed
+            if grow_below is not None:
+                h, w = pixels.shape
+                pixels |= upsample_nearest(p.similarity < grow_below, h, w)
+            out[region_to_gaussians(p.view, pixels)] = True
+    return out
 
 
 def _aligned_images(scene: Scene, excl, config: FilterConfig) -> list:

@@ -13,6 +13,11 @@ then prepares V - K views, where dropping the least recently used would prepare 
 
 Alongside, each view keeps a packed bit per Gaussian (1/8 byte, whether its camera sees it)
 so that verification can skip the views that a removal cannot change without preparing them.
+
+Once the filter knows which Gaussians any later render may leave out (:meth:`prune`), each
+view keeps only what those renders can reach (:meth:`~clearsplat.render.PreparedView.pruned`),
+and its bits then mark the Gaussians it still holds: a Gaussian hidden everywhere in a view
+cannot change it.
 """
 
 from __future__ import annotations
@@ -46,6 +51,8 @@ class PreparedViews:
     skipped : int
         (view, removal) pairs the filter left out because the view sees none of the removal's
         Gaussians.
+    pruned_bytes : int
+        Bytes the kept views held right after :meth:`prune` (0 before).
     """
 
     def __init__(self, num_gaussians: int, cameras, make: Callable, *, budget: int | None):
@@ -59,6 +66,8 @@ class PreparedViews:
         self.prepared = 0
         self.peak_bytes = 0
         self.skipped = 0
+        self.pruned_bytes = 0
+        self._floor: Callable | None = None
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -73,9 +82,9 @@ class PreparedViews:
         view = self._make(i)
         self.prepared += 1
         if self._seen[i] is None:
-            seen = np.zeros(self.num_gaussians, dtype=bool)
-            seen[view.visible] = True
-            self._seen[i] = np.packbits(seen)
+            self._seen[i] = self._bits(view)
+        if self._floor is not None:
+            view = self._pruned(i, view)
         self._kept[i] = view
         self._fit(i)
         return view
@@ -94,6 +103,28 @@ class PreparedViews:
                 break
             if j != current:
                 held -= self._kept.pop(j).memory_bytes
+
+    def _bits(self, view) -> np.ndarray:
+        seen = np.zeros(self.num_gaussians, dtype=bool)
+        seen[view.visible] = True
+        return np.packbits(seen)
+
+    def _pruned(self, i: int, view):
+        floor = self._floor(i)
+        if floor is None:
+            return view
+        view = view.pruned(floor)
+        self._seen[i] = self._bits(view)
+        return view
+
+    def prune(self, floor: Callable) -> None:
+        """From now on hold each view pruned to ``floor(i)`` ((N,) bool, the Gaussians every
+        later render of view ``i`` keeps; None: that view is not pruned), the views held now
+        included."""
+        self._floor = floor
+        for i in list(self._kept):
+            self._kept[i] = self._pruned(i, self._kept[i])
+        self.pruned_bytes = self._bytes()
 
     def release(self) -> None:
         """Drop every kept view (the visibility bits stay)."""

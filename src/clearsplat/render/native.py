@@ -69,6 +69,7 @@ class PreparedView(_TiledView):
         self._offsets, self._lists = offsets, lists
         self._num_threads = num_threads
         self._visible_id = None  # (N,) int32 Gaussian -> visible id or -1, built on demand
+        self._floor = None  # (V,) bool over the held Gaussians that renders must keep (pruned)
 
     # -- properties ------------------------------------------------------------------------
     @property
@@ -83,8 +84,7 @@ class PreparedView(_TiledView):
     @property
     def memory_bytes(self) -> int:
         arrays = [self._splats, self._rects, self._index, self._offsets, self._lists]
-        if self._visible_id is not None:
-            arrays.append(self._visible_id)
+        arrays += [a for a in (self._visible_id, self._floor) if a is not None]
         return int(sum(a.nbytes for a in arrays))
 
     def centres_inside(self) -> np.ndarray:
@@ -108,8 +108,17 @@ class PreparedView(_TiledView):
     def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
         """(V,) bool keep over the visible Gaussians, or None."""
         keep = _check_keep(keep, self.num_gaussians, field)
-        # np.take: about twice as fast as fancy indexing with int32 indices.
-        return None if keep is None else np.take(keep, self._index)
+        keep_v = None if keep is None else _kernels.take_mask(keep, self._index, 1)
+        if keep_v is not None and self._floor is not None and (self._floor & ~keep_v).any():
+            raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
+                                  "its floor, and this one leaves some out", field=field)
+        return keep_v
+
+    def _check_removed(self, ids: np.ndarray, field: str) -> None:
+        """A pruned view renders removals only of Gaussians outside its floor."""
+        if self._floor is not None and ids.size and self._floor[ids].any():
+            raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
+                                  "its floor, and this removal takes some away", field=field)
 
     def _ids(self, gaussians, field: str) -> np.ndarray:
         """Sorted unique visible ids (int32) of the given Gaussians (invisible ones dropped)."""
@@ -119,7 +128,7 @@ class PreparedView(_TiledView):
             if a.shape != (self.num_gaussians,):
                 raise ClearsplatError(f"expected a ({self.num_gaussians},) bool mask, got shape "
                                       f"{a.shape}", field=field)
-            return np.flatnonzero(np.take(a, self._index)).astype(np.int32)
+            return np.flatnonzero(_kernels.take_mask(a, self._index, 1)).astype(np.int32)
         idx = _check_indices(a, self.num_gaussians, field)
         if self._visible_id is None:
             vid = np.full(self.num_gaussians, -1, dtype=np.int32)
@@ -293,6 +302,8 @@ class PreparedView(_TiledView):
         bg = _check_background(background)
         removals = list(removals)
         ids = [self._ids(r, f"removals[{i}]") for i, r in enumerate(removals)]
+        for i, a in enumerate(ids):
+            self._check_removed(a, f"removals[{i}]")
         rem_offsets = np.zeros(len(ids) + 1, dtype=np.int64)
         rem_offsets[1:] = np.cumsum([a.size for a in ids])
         rem_ids = np.concatenate(ids) if ids else np.empty(0, np.int32)
@@ -356,6 +367,52 @@ class PreparedView(_TiledView):
         out.alpha[r, c] = patch.alpha[valid]
         out.depth[r, c] = patch.depth[valid]
         return out
+
+    def pruned(self, floor) -> "PreparedView":
+        """A smaller copy that renders every subset containing ``floor`` as this view does.
+
+        Compositing walks a tile's list front to back and a pixel stops where its
+        transmittance would fall below 1e-4. A render that keeps every Gaussian of ``floor``
+        (and maybe more) has, at every point of the list, at most the transmittance of
+        ``floor`` alone, so wherever ``floor`` alone has stopped a pixel it has stopped it too.
+        The copy keeps only the list entries that reach some pixel (alpha at least 1/255) not
+        yet stopped under ``floor`` alone, and the Gaussians they name; every render, re-render
+        and contribution list of a ``keep`` containing ``floor`` is bit for bit the same.
+
+        Parameters
+        ----------
+        floor : (N,) bool
+            Gaussians that every later render of this view keeps (with those of an earlier
+            pruning: floors add up).
+
+        Returns
+        -------
+        PreparedView
+            Its :attr:`visible` are the Gaussians it holds; a ``keep`` that leaves out a
+            Gaussian of the floor, or a removal of one, raises :class:`ClearsplatError`.
+        """
+        floor = _check_keep(floor, self.num_gaussians, "floor")
+        floor_v = _kernels.take_mask(floor, self._index, 1)
+        if self._floor is not None:
+            floor_v |= self._floor
+        h, w = self.camera.height, self.camera.width
+        live = _kernels.live_entries(self._splats, self._offsets, self._lists, floor_v, w, h,
+                                     self._num_threads)
+        lists = self._lists[live]
+        # Entries per tile: the running count of live entries at each tile's start.
+        running = np.zeros(live.size + 1, dtype=np.int64)
+        np.cumsum(live, out=running[1:])
+        offsets = running[self._offsets]
+        held = np.zeros(self.num_visible, dtype=bool)
+        held[lists] = True
+        # Held Gaussians keep their front-to-back order: lists stay ascending.
+        new_id = np.cumsum(held, dtype=np.int64).astype(np.int32) - 1
+        view = PreparedView(camera=self.camera, num_gaussians=self.num_gaussians,
+                            splats=self._splats[held], rects=self._rects[held],
+                            index=self._index[held], offsets=offsets,
+                            lists=new_id[lists], num_threads=self._num_threads)
+        view._floor = floor_v[held]
+        return view
 
     def contributions(self, mask, *, keep=None) -> Contributions:
         """Every ``(pixel, gaussian, alpha * T)`` the compositing adds where ``mask`` is True.

@@ -1,0 +1,129 @@
+"""Pruned prepared views: every render of a subset containing the floor is unchanged, bit for
+bit, and the filter's output does not depend on pruning."""
+
+import numpy as np
+import pytest
+
+from clearsplat import Scene
+from clearsplat.errors import ClearsplatError
+from clearsplat.features import get_extractor
+from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter.association import ViewIndex
+from clearsplat.render import prepare
+from clearsplat.synth import make_world, reconstruct
+
+from test_render import make_camera, random_gaussians
+
+
+def _same(a, b):
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture(scope="module")
+def street():
+    w = make_world("street", num_views=8, seed=1, height=48, width=80)
+    return reconstruct(w.cameras, w.images, w.depths, seed=1)
+
+
+@pytest.fixture(scope="module")
+def scattered():
+    rng = np.random.default_rng(5)
+    g = random_gaussians(rng, 4000, k=4, spread=0.8)
+    g.scales[:] *= 0.4
+    cams = [make_camera(70, 45, eye=(np.sin(a) * 3, 0.3, -np.cos(a) * 3)) for a in (0.0, 0.5)]
+    return Scene(g, rng.integers(0, 2, 4000).astype(np.int32), None, cams)
+
+
+def _cases(scene, view, rng):
+    """A floor (all but the view's own Gaussians and a 'proposed' set) and its removable set."""
+    n = len(scene)
+    own = ViewIndex(scene).mask(view, n) if scene.pixel_id is not None else scene.view_id == view
+    proposed = rng.uniform(size=n) < 0.04
+    means = scene.gaussians.means
+    centre = means[rng.integers(n)]
+    proposed[np.argsort(np.linalg.norm(means - centre, axis=1))[:200]] = True   # a clump
+    return own, proposed, ~(own | proposed)
+
+
+@pytest.mark.parametrize("which", ["street", "scattered"])
+def test_pruned_view_renders_every_superset_of_the_floor_identically(which, street, scattered):
+    scene = street if which == "street" else scattered
+    rng = np.random.default_rng(3)
+    n = len(scene)
+    for view in (0, 1):
+        own, proposed, floor = _cases(scene, view, rng)
+        full = prepare(scene, scene.cameras[view])
+        small = full.pruned(floor)
+        assert small.num_visible <= full.num_visible
+        bg = (0.2, 0.5, 0.1)
+        removable = np.flatnonzero(own | proposed)
+        keeps = [None, ~own, floor, ~proposed, floor | (rng.uniform(size=n) < 0.5)]
+        for keep in keeps:
+            _same(small.render(keep=keep, background=bg), full.render(keep=keep, background=bg))
+        for a, b in zip(small.render_pair(keep=floor, first=~own, background=bg),
+                        full.render_pair(keep=floor, first=~own, background=bg)):
+            _same(a, b)
+        # Incremental re-renders of removals taken from outside the floor, with and without
+        # the base render.
+        base_keep = ~own
+        base = full.render(keep=base_keep, background=bg)
+        removals = [rng.choice(removable, size=k, replace=False) for k in (1, 10, 150)]
+        removals.append(np.flatnonzero(proposed & ~own))
+        for with_base in (None, base):
+            got = small.rerender_tiles(keep=base_keep, removals=removals, background=bg,
+                                       base=with_base)
+            for removal, patch in zip(removals, got):
+                k = base_keep.copy()
+                k[removal] = False
+                want = full.render(keep=k, background=bg)
+                for a, f in zip(patch[1:], want):
+                    np.testing.assert_array_equal(a, full.gather(f, patch.tiles))
+                np.testing.assert_array_equal(small.scatter(patch, base).rgb, want.rgb)
+        others = proposed & ~own
+        tiles = small.tiles_touched(others)
+        _same(small.rerender(base, keep=~(own | proposed), tiles=tiles, background=bg),
+              full.render(keep=~(own | proposed), background=bg))
+        everywhere = np.ones((scene.cameras[view].height, scene.cameras[view].width), bool)
+        _same(small.contributions(everywhere), full.contributions(everywhere))
+
+
+def test_pruning_drops_hidden_entries_and_guards_its_floor(street):
+    rng = np.random.default_rng(0)
+    own, proposed, floor = _cases(street, 0, rng)
+    full = prepare(street, street.cameras[0])
+    small = full.pruned(floor)
+    # Eight views of one street: most of what a camera sees is hidden behind nearer layers.
+    assert small._lists.size < 0.8 * full._lists.size
+    assert small.memory_bytes < full.memory_bytes
+    # A render that leaves out part of the floor, or removes part of it, is refused.
+    outside = np.flatnonzero(floor)[:5]
+    keep = np.ones(len(street), bool)
+    keep[outside] = False
+    with pytest.raises(ClearsplatError, match="pruned"):
+        small.render(keep=keep)
+    with pytest.raises(ClearsplatError, match="pruned"):
+        small.rerender_tiles(keep=~own, removals=[outside])
+    with pytest.raises(ClearsplatError, match="pruned"):
+        small.contributions(np.ones((48, 80), bool), keep=own)
+    # Floors add up: pruning again keeps the first floor too.
+    again = small.pruned(floor | own)
+    _same(again.render(keep=floor | own), full.render(keep=floor | own))
+    with pytest.raises(ClearsplatError, match="pruned"):
+        again.render(keep=floor)
+    with pytest.raises(ClearsplatError, match="floor"):
+        full.pruned(floor[:-1])
+
+
+@pytest.mark.parametrize("preset", ["default", "paper-local"])
+def test_filter_output_does_not_depend_on_pruning(street, preset):
+    ex = get_extractor("local")
+    cfg = FilterConfig.preset(preset).replace(prune_views=True)
+    a = filter_distractors(street, config=cfg, extractor=ex)
+    b = filter_distractors(street, config=cfg.replace(prune_views=False), extractor=ex)
+    c = filter_distractors(street, config=cfg.replace(view_memory=1e-6), extractor=ex)
+    for other in (b, c):
+        assert np.array_equal(a.keep, other.keep)
+        assert [x.record() for x in a.candidates] == [x.record() for x in other.candidates]
+    assert a.stats["views_peak_bytes"] >= a.stats["views_pruned_bytes"]
+    assert b.stats["views_pruned_bytes"] == 0
