@@ -194,7 +194,7 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
 
 def test_verification_mask_modes(soft_scene):
     """``"revealing"`` leaves out exactly the verifying view's unreliable pixels, ``"auto"`` is
-    ``"revealing"`` with three or more views and ``"proposals+revealing"`` with two."""
+    ``"revealing"`` with eight or more views and ``"proposals+revealing"`` with fewer."""
     from clearsplat.filter.pipeline import _exclusion_masks
     scene, _ = soft_scene
     ex = get_extractor("local")
@@ -208,17 +208,16 @@ def test_verification_mask_modes(soft_scene):
             m = p.mask1 if rng == 1 else p.mask1 | p.mask2
             np.testing.assert_array_equal(q, m | p.unreliable)
     assert scene.num_views == 3
-    np.testing.assert_array_equal(res["auto"].keep, res["revealing"].keep)
+    np.testing.assert_array_equal(res["auto"].keep, res["proposals+revealing"].keep)
     assert [c.scores for c in res["auto"].candidates] == \
-        [c.scores for c in res["revealing"].candidates]
+        [c.scores for c in res["proposals+revealing"].candidates]
     # the masks differ, and with them some score
     assert [c.scores for c in res["revealing"].candidates] != \
         [c.scores for c in res["proposals+revealing"].candidates]
-    world = make_world("street", num_views=2, seed=1, height=48, width=80)
-    two, _ = realistic_reconstruction(world, "plain", seed=1)
-    a = filter_distractors(two, config=FilterConfig(verify_mask="auto"), extractor=ex)
-    b = filter_distractors(two, config=FilterConfig(verify_mask="proposals+revealing"),
-                           extractor=ex)
+    world = make_world("object", num_views=8, seed=1, height=32, width=64)
+    eight, _ = realistic_reconstruction(world, "plain", seed=1)
+    a = filter_distractors(eight, config=FilterConfig(verify_mask="auto"), extractor=ex)
+    b = filter_distractors(eight, config=FilterConfig(verify_mask="revealing"), extractor=ex)
     np.testing.assert_array_equal(a.keep, b.keep)
     assert [c.scores for c in a.candidates] == [c.scores for c in b.candidates]
     with pytest.raises(ClearsplatError):

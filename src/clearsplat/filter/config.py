@@ -180,8 +180,10 @@ class FilterConfig:
         scene). ``"revealing"``: only those: a proposal region of the verifying view is often
         caused by the candidate itself (another view's distractor standing in its exclusion
         render), and leaving it out leaves out the very pixels that would confirm the
-        candidate. ``"auto"``: ``"revealing"`` with three or more views, where each view's
-        static reference comes from at least two others; ``"proposals+revealing"`` with two.
+        candidate. ``"auto"``: ``"revealing"`` with eight or more views, where neighbouring
+        views see each distractor at nearly the same place; ``"proposals+revealing"`` with
+        fewer, where the proposal regions also keep static candidates from passing on clean
+        scenes.
         All but ``"proposals"`` need ``refine`` other than ``"none"``.
     verify_holes : {"auto", "skip", "count"}
         Pixels where the render after a removal keeps accumulated opacity below ``eta`` show what

@@ -36,6 +36,9 @@ Progress = Callable[[str, int, int], None]
 _STATIC_MIN_ALPHA = 0.1
 #: The colour test of ``refine_color`` needs the static reference this opaque at the pixel.
 _COLOR_MIN_ALPHA = 0.9
+#: ``verify_mask="auto"`` leaves the proposal regions in verification (``"revealing"``) from
+#: this many views on (measured: needed at 8 and 16 views, harmful on clean 4-view scenes).
+_REVEALING_MASK_MIN_VIEWS = 8
 
 
 @dataclass(eq=False)
@@ -341,7 +344,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     else:
         mode = config.verify_mask
         if mode == "auto":
-            mode = "revealing" if scene.num_views > 2 else "proposals+revealing"
+            mode = ("revealing" if scene.num_views >= _REVEALING_MASK_MIN_VIEWS
+                    else "proposals+revealing")
         q = {r: _exclusion_masks(proposals, r, mode) for r in (1, 2)}
         _individual_tests(scene, candidates, q, verifier, full, excl, own, seen_counts,
                           config, report)
