@@ -653,3 +653,16 @@ def test_take_mask_equals_numpy_take():
         _kernels.take_mask(np.ones(5, bool), np.array([0, 5], np.int32), 1)
     with pytest.raises(ValueError, match="out of range"):
         _kernels.take_mask(np.ones(5, bool), np.array([-1], np.int32), 1)
+
+
+def test_centres_inside_equals_numpy(world):
+    scene, _ = world
+    for cam in scene.cameras:
+        view = prepare(scene, cam)
+        u, v = view._splats[:, 0], view._splats[:, 1]
+        want = np.zeros(len(scene), bool)
+        want[view.visible[(u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)]] = True
+        got = view.centres_inside()
+        assert got.dtype == np.bool_ and got.shape == (len(scene),)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < got.sum() < view.num_visible   # some centres lie outside, their splats in

@@ -228,6 +228,37 @@ nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index, i
     return owned(out, {size_t(v)});
 }
 
+// (n,) uint8: 1 for the Gaussians (index[i]) whose projected centre (splats[i, 0:2]) lies in
+// the width x height image.
+nb::ndarray<nb::numpy, uint8_t> centres_inside(In<float> splats, In<int32_t> index, int64_t n,
+                                               int width, int height) {
+    require(splats.ndim() == 2 && splats.shape(1) == 12 &&
+                int64_t(splats.shape(0)) == int64_t(index.size()) && n >= 0, "splats / index");
+    uint8_t* out = static_cast<uint8_t*>(std::calloc(size_t(std::max<int64_t>(n, 1)), 1));
+    if (!out) throw std::bad_alloc();
+    const float* s = splats.data();
+    const int32_t* idx = index.data();
+    const float w = float(width), h = float(height);
+    int64_t bad = 0;
+    {
+        nb::gil_scoped_release release;
+        for (int64_t i = 0; i < int64_t(index.size()); ++i) {
+            const float u = s[12 * i], v = s[12 * i + 1];
+            const int32_t k = idx[i];
+            if (k < 0 || int64_t(k) >= n) {
+                ++bad;
+                continue;
+            }
+            if (u >= 0.0f && u < w && v >= 0.0f && v < h) out[k] = 1;
+        }
+    }
+    if (bad) {
+        std::free(out);
+        require(false, "index out of range");
+    }
+    return owned(out, {size_t(n)});
+}
+
 }  // namespace
 
 NB_MODULE(_core, m) {
@@ -257,6 +288,8 @@ NB_MODULE(_core, m) {
           "with a base render (empty arrays: none) only the pixels the removal can change.");
     m.def("take_mask", &take_mask, "mask"_a, "index"_a, "num_threads"_a,
           "mask[index] as uint8 (a keep mask over a view's visible Gaussians).");
+    m.def("centres_inside", &centres_inside, "splats"_a, "index"_a, "n"_a, "width"_a, "height"_a,
+          "(n,) uint8: the Gaussians whose projected centre lies inside the image.");
     m.def("live_entries", &live_entries, "splats"_a, "offsets"_a, "lists"_a, "floor"_a,
           "width"_a, "height"_a, "live"_a, "num_threads"_a,
           "Mark (in place) the tile-list entries a render of any superset of floor can use.");

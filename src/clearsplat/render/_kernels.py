@@ -177,3 +177,10 @@ def take_mask(mask: np.ndarray, index: np.ndarray, num_threads: int) -> np.ndarr
     faster than ``np.take``, which widens the indices first; one thread is enough, the gather
     is bound by memory)."""
     return _core.take_mask(_mask(mask), _c(index, np.int32), int(num_threads)).view(np.bool_)
+
+
+def centres_inside(splats, index, n: int, width: int, height: int) -> np.ndarray:
+    """(n,) bool: the Gaussians ``index`` whose projected centre (``splats[:, :2]``) lies in
+    the image."""
+    return _core.centres_inside(_c(splats, np.float32), _c(index, np.int32), int(n), int(width),
+                                int(height)).view(np.bool_)

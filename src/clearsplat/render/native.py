@@ -92,12 +92,8 @@ class PreparedView(_TiledView):
 
         Culled Gaussians (behind the near plane, below alpha 1/255, off-image) are False.
         """
-        u, v = self._splats[:, 0], self._splats[:, 1]
-        w, h = self.camera.width, self.camera.height
-        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        out = np.zeros(self.num_gaussians, dtype=bool)
-        out[self._index[inside]] = True
-        return out
+        return _kernels.centres_inside(self._splats, self._index, self.num_gaussians,
+                                       self.camera.width, self.camera.height)
 
     def __repr__(self) -> str:
         return (f"PreparedView({self.camera.width}x{self.camera.height}, "
