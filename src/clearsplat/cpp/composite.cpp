@@ -86,6 +86,24 @@ __attribute__((always_inline)) inline void accumulate(TileState& s, int p, i8 do
             if (add[l]) record->push_back(Entry{p + l, id, weight[l]});
 }
 
+// The lanes of pixels [p, p + 8) (row ly of the tile, p = 16 ly + base) that `gs` reaches:
+// inside its box columns [start, lx1], not `done`, power <= 0 and alpha >= 1/255, with their
+// alpha (capped at 0.99) in `alpha`. The 3DGS per-pixel test, shared by every compositing loop.
+__attribute__((always_inline)) inline i8 reached(const Splat& gs, const TileState& s, int start,
+                                                 int lx1, int base, float dy, i8 done,
+                                                 f8& alpha) {
+    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
+    const i8 col = iota + base;
+    i8 active = (col >= start) & (col <= lx1) & ~done;
+    if (!any(active)) return active;
+    const f8 dx = gs.u - (__builtin_convertvector(col + s.x0, f8) + 0.5f);
+    const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
+    active &= power <= 0.0f;
+    alpha = gs.opacity * exp_nonpositive(power);
+    alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
+    return active & (alpha >= kMinAlpha);
+}
+
 // Composites one tile's list into `s`, skipping ids with keep[id] == 0 and the ascending ids
 // in `removed`; appends every added contribution to `record` when given.
 //
@@ -97,7 +115,6 @@ void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int3
                     int64_t num_removed, TileState& s, std::vector<Entry>* record) {
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
-    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
     int64_t ri = 0;
     for (int64_t k = 0; k < len && s.remaining > 0; ++k) {
         // A tile's ids are scattered over the depth order: fetch records ahead of use.
@@ -116,18 +133,10 @@ void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int3
             for (int start = lx0; start <= lx1; start += 8) {
                 const int base = std::min(start, kTile - 8);  // the 8 lanes stay in the row
                 const int p = ly * kTile + base;
-                const i8 col = iota + base;
                 const i8 done = load(s.done + p);
-                i8 active = (col >= start) & (col <= lx1) & ~done;
-                if (!any(active)) continue;
-                const f8 dx = gs.u - (__builtin_convertvector(col + s.x0, f8) + 0.5f);
-                const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
-                active &= power <= 0.0f;
-                f8 alpha = gs.opacity * exp_nonpositive(power);
-                alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
-                active &= alpha >= kMinAlpha;
-                if (!any(active)) continue;
-                accumulate(s, p, done, active, alpha, gs, id, record);
+                f8 alpha;
+                const i8 active = reached(gs, s, start, lx1, base, dy, done, alpha);
+                if (any(active)) accumulate(s, p, done, active, alpha, gs, id, record);
             }
         }
     }
@@ -188,7 +197,6 @@ CS_TARGET_CLONES
 void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, uint8_t* live) {
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
-    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
     int64_t k = 0;
     for (; k < len && s.remaining > 0; ++k) {
         if (k + kPrefetch < len) prefetch_splat(v.splats + list[k + kPrefetch]);
@@ -203,16 +211,9 @@ void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, 
             for (int start = lx0; start <= lx1; start += 8) {
                 const int base = std::min(start, kTile - 8);
                 const int p = ly * kTile + base;
-                const i8 col = iota + base;
                 const i8 done = load(s.done + p);
-                i8 active = (col >= start) & (col <= lx1) & ~done;
-                if (!any(active)) continue;
-                const f8 dx = gs.u - (__builtin_convertvector(col + s.x0, f8) + 0.5f);
-                const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
-                active &= power <= 0.0f;
-                f8 alpha = gs.opacity * exp_nonpositive(power);
-                alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
-                active &= alpha >= kMinAlpha;
+                f8 alpha;
+                const i8 active = reached(gs, s, start, lx1, base, dy, done, alpha);
                 if (!any(active)) continue;
                 used = true;
                 if (in_floor) accumulate(s, p, done, active, alpha, gs, id, nullptr);
