@@ -480,9 +480,12 @@ def test_view_command_prints_the_url_and_serves(filtered):
     import urllib.request
     scene_dir, out = filtered
     port = _free_port()
+    # A command started in the background by a non-interactive shell ignores SIGINT, and its
+    # children inherit that: give the viewer the default disposition, as a terminal would.
     proc = subprocess.Popen([sys.executable, "-m", "clearsplat", "view", str(scene_dir),
                              "--filtered", str(out), "--port", str(port)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         start = time.monotonic()
         line = proc.stdout.readline()
