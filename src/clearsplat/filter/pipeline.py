@@ -116,7 +116,8 @@ class FilterResult:
         ``views_prepared``: camera preparations made (the number of views, plus those prepared
         again under ``config.view_memory``); ``views_peak_bytes``: most bytes the prepared
         views held at once; ``views_skipped``: (view, removal) pairs left out because the view
-        sees none of the removal's Gaussians (CPU only).
+        sees none of the removal's Gaussians; ``views_pruned_bytes``: bytes the views held right
+        after ``config.prune_views`` pruned them (0 without it) (CPU only).
     """
 
     keep: np.ndarray
