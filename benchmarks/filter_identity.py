@@ -31,6 +31,7 @@ def _cases(quick: bool):
 
 
 def _config(name: str, overrides=()):
+    from clearsplat.bench import parse_value
     from clearsplat.filter import FilterConfig
     if name == "default":
         cfg = FilterConfig()
@@ -38,9 +39,9 @@ def _config(name: str, overrides=()):
         cfg = FilterConfig.preset("paper-local")
     else:
         cfg = FilterConfig(incremental=False)
-    for item in overrides:   # KEY=VALUE, VALUE as JSON
+    for item in overrides:   # KEY=VALUE, read as `clearsplat bench --config` reads it
         key, _, value = item.partition("=")
-        cfg = cfg.replace(**{key: json.loads(value)})
+        cfg = cfg.replace(**{key: parse_value(value)})
     return cfg
 
 
@@ -74,7 +75,7 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="128x224 only")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a FilterConfig field for every configuration (an option that must not "
-                        "change the output), VALUE as JSON")
+                        "change the output), VALUE as in `clearsplat bench --config`")
     p.add_argument("--no-full", action="store_true",
                    help="skip the non-incremental configuration (slow at 16 views)")
     args = p.parse_args(argv)

@@ -18,7 +18,8 @@ camera preparations per run (the number of views, plus views prepared again beca
 not fit in ``--view-memory``), *skipped* the (view, pass) visits left out because the view sees
 none of the Gaussians concerned, *views GB* the most the prepared views held at once; *CPU s*
 the process CPU time of a run (median; with ``--threads 1`` a measure of the work done that a
-busy machine disturbs far less than wall-clock time).
+busy machine disturbs far less than wall-clock time); *proposed* the share of the input pixels
+in proposal regions, mean over the views.
 Full-render verification is skipped above 16 views (it re-renders every image per candidate).
 """
 
@@ -42,6 +43,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     import numpy as np
 
     from clearsplat._memory import estimate_filter_memory
+    from clearsplat.bench import parse_value
     from clearsplat.features import get_extractor
     from clearsplat.filter import FilterConfig, filter_distractors
     from clearsplat.synth import make_world, reconstruct
@@ -55,9 +57,9 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     cfg = FilterConfig(num_threads=threads,
                        **({"view_memory": view_memory} if "view_memory" in options else {}),
                        **({"device": device} if device != "cpu" else {}))
-    for item in overrides:   # --set KEY=VALUE, as the command line's
+    for item in overrides:   # --set KEY=VALUE, read as `clearsplat bench --config` reads it
         key, _, value = item.partition("=")
-        cfg = cfg.replace(**{key: json.loads(value)})
+        cfg = cfg.replace(**{key: parse_value(value)})
     if views > 16 and device == "cpu":
         full_repeats = 0
 
@@ -70,6 +72,9 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         return {"timings": r.timings, "keep": r.keep, "candidates": len(r.candidates),
                 "accepted": sum(c.accepted for c in r.candidates),
                 "stats": getattr(r, "stats", {}),
+                # Share of the input pixels in proposal regions (M_i^1 | M_i^2), mean over views.
+                "proposed": float(np.mean([(p.mask1 | p.mask2).mean() for p in r.proposals]))
+                if r.proposals else 0.0,
                 "cpu": cpu}
 
     inc = [run(cfg) for _ in range(repeats)]
@@ -99,6 +104,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "views_skipped": inc[0]["stats"].get("views_skipped", 0),
         "views_peak_gb": inc[0]["stats"].get("views_peak_bytes", 0) / 1e9,
         "views_pruned_gb": inc[0]["stats"].get("views_pruned_bytes", 0) / 1e9,
+        "proposed_share": inc[0]["proposed"],
         "view_memory": view_memory,
         "memory_estimate_gb": estimate_filter_memory(
             len(scene), scene.cameras,
@@ -128,7 +134,7 @@ def main(argv=None) -> int:
                    help="FilterConfig.device, e.g. cuda (then the --full-repeats runs are the "
                         "CPU filter, and 'same output' compares the two)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="a FilterConfig field for every run, VALUE as JSON (e.g. prune_views=false)")
+                   help="a FilterConfig field for every run, VALUE as in `clearsplat bench --config` (e.g. prune_views=false)")
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -174,14 +180,15 @@ def main(argv=None) -> int:
               f"{str(r['identical_output']):>11}")
     base = next((r for r in rows if r["views"] == 8), rows[0])
     print(f"\n{'views':>5} {'CPU s':>7} {'x CPU':>6} {'x time':>7} {'x peak':>7} "
-          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'pruned GB':>10} {'estimate GB':>12}   "
+          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'pruned GB':>10} {'estimate GB':>12} "
+          f"{'proposed':>9}   "
           f"(x: against {base['views']} views)")
     for r in rows:
         print(f"{r['views']:>5} {r['cpu_s']:>7.2f} {r['cpu_s'] / base['cpu_s']:>6.2f} "
               f"{r['total_s'] / base['total_s']:>7.2f} "
               f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
               f"{r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} {r['views_pruned_gb']:>10.2f} "
-              f"{r['memory_estimate_gb']:>12.2f}")
+              f"{r['memory_estimate_gb']:>12.2f} {100 * r.get('proposed_share', 0.0):>8.1f}%")
     steps = list(dict.fromkeys(k for r in rows for k in r["steps"]))
     print("\nwhere the time goes (seconds, medians):")
     print(f"{'step':<32}" + "".join(f"{str(r['views']) + ' views':>10}" for r in rows))

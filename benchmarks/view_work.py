@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/view_work.py --views 8,16,32 --resolution 128x224 --family street
 
-Counts, not timings (the same on any machine). For every view count, on the stand-in scene:
+Counts (the same on any machine) and one timing. For every view count, on the stand-in scene:
 
 - *visible*: share of all Gaussians that survive a camera's culling (projection, binning and
   sorting work for that camera), mean over the cameras;
@@ -13,6 +13,9 @@ Counts, not timings (the same on any machine). For every view count, on the stan
   hidden behind pixels that stopped (transmittance below 1e-4) before reaching them;
 - *entries/px*: contributions each pixel adds before it stops, full render (compositing work a
   pixel needs);
+- *prepare ns/G*: process CPU nanoseconds per Gaussian and camera of ``prepare`` (projection,
+  culling, depth sort and tile binning) on one thread, median over the cameras (the one timing
+  here: it shows that this work is per Gaussian, whatever the number of views);
 - *list needed*: share of the (tile, Gaussian) pairs that tile-level early termination would
   leave to walk for R_i and R_i^-i to stay exact: each tile list cut to the shortest prefix of
   64, 128, ... entries that renders that tile identically (cameras 0 and V/2);
@@ -25,6 +28,7 @@ Counts, not timings (the same on any machine). For every view count, on the stan
 from __future__ import annotations
 
 import argparse
+import time
 
 import numpy as np
 
@@ -118,14 +122,21 @@ def main(argv=None) -> int:
     h, w = (int(x) for x in args.resolution.lower().split("x"))
     print(f"per-camera work of exact renders — {args.family} scenes at {w}x{h}, seed {args.seed}")
     print(f"{'views':>5} {'Gaussians':>10} {'visible':>8} {'contributing R / R^-i':>22} "
-          f"{'entries/px':>11} {'list needed R / R^-i':>21} {'block cull 64 / 256':>20} "
+          f"{'entries/px':>11} {'prepare ns/G':>13} {'list needed R / R^-i':>21} "
+          f"{'block cull 64 / 256':>20} "
           f"{'invisible':>10}")
     for v in [int(x) for x in args.views.split(",")]:
         world = make_world(args.family, num_views=v, seed=args.seed, height=h, width=w)
         scene = reconstruct(world.cameras, world.images, world.depths, seed=args.seed)
         n = len(scene)
         index = ViewIndex(scene)
-        visible = [prepare(scene, c).num_visible / n for c in scene.cameras]
+        visible, ns = [], []
+        for c in scene.cameras:
+            t = time.process_time()
+            pv = prepare(scene, c, num_threads=1)
+            ns.append((time.process_time() - t) / n * 1e9)
+            visible.append(pv.num_visible / n)
+            del pv
         contrib_full, contrib_excl, entries, need_full, need_excl = [], [], [], [], []
         for i in sorted({0, v // 2}):
             pv = prepare(scene, scene.cameras[i])
@@ -141,7 +152,7 @@ def main(argv=None) -> int:
             need_excl.append(_tile_needed(pv, ~own, excl))
         print(f"{v:>5} {n:>10,} {np.mean(visible):>8.2f} "
               f"{f'{np.mean(contrib_full):.2f} / {np.mean(contrib_excl):.2f}':>22} "
-              f"{np.mean(entries):>11.1f} "
+              f"{np.mean(entries):>11.1f} {np.median(ns):>13.1f} "
               f"{f'{np.mean(need_full):.2f} / {np.mean(need_excl):.2f}':>21} "
               f"{f'{_block_cull(scene, 64):.3f} / {_block_cull(scene, 256):.3f}':>20} "
               f"{1 - np.mean(visible):>10.3f}")

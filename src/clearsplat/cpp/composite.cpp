@@ -166,19 +166,13 @@ void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
             for (int start = lx0; start <= lx1; start += 8) {
                 const int base = std::min(start, kTile - 8);
                 const int p = ly * kTile + base;
-                const i8 col = iota + base;
-                const i8 in_box = (col >= start) & (col <= lx1);
                 const i8 done_a = in_a ? load(a.done + p) : all_done;
                 const i8 done_b = in_b ? load(b.done + p) : all_done;
-                i8 act_a = in_box & ~done_a, act_b = in_box & ~done_b;
-                if (!any(act_a | act_b)) continue;
-                const f8 dx = gs.u - (__builtin_convertvector(col + a.x0, f8) + 0.5f);
-                const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
-                f8 alpha = gs.opacity * exp_nonpositive(power);
-                alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
-                const i8 ok = (power <= 0.0f) & (alpha >= kMinAlpha);
-                act_a &= ok;
-                act_b &= ok;
+                // The lanes either state still composites (a and b share the tile's origin).
+                f8 alpha;
+                const i8 act = reached(gs, a, start, lx1, base, dy, done_a & done_b, alpha);
+                if (!any(act)) continue;
+                const i8 act_a = act & ~done_a, act_b = act & ~done_b;
                 if (any(act_a)) accumulate(a, p, done_a, act_a, alpha, gs, id, nullptr);
                 if (any(act_b)) accumulate(b, p, done_b, act_b, alpha, gs, id, nullptr);
             }

@@ -211,9 +211,9 @@ class FilterConfig:
         entries that a later render can reach: every later render of that camera keeps all
         Gaussians but the view's own and those of the proposed regions, so an entry behind
         pixels that stop in front of it under those alone never changes one. Never changes the
-        output. Off by default: on the stand-in scenes the proposals cover about half of every
-        image, so little can be pruned and the pruning pass costs more than it saves
-        (``docs/benchmarks.md``, "Dense captures").
+        output. Off by default: on the stand-in scenes at 32 views the proposals cover about
+        half of every image, so little can be pruned and the pruning pass costs more than it
+        saves (``docs/benchmarks.md``, "Dense captures").
     photometric_align : bool
         Map each input image per channel (affine, robust fit) to the colours the other views
         render there before the similarity, the colour test of ``refine_color`` and the
