@@ -45,6 +45,25 @@ def main() -> None:
     print("\nMean PSNR gain over every cell of a scenario")
     for (scen, cfg), g in per_scenario.items():
         print(f"{scen:9s} {cfg:14s} {sum(g) / len(g):+5.2f} dB over {len(g)} cells")
+    overall = defaultdict(list)
+    for (_, cfg, views), rs in cells.items():
+        overall[(cfg, views)].extend(rs)
+    print("\nOver every scenario and family (worst cell in brackets)")
+    print("config          views  cells  PSNR gain (of exact)  recall  other removed"
+          "      clean dPSNR        clean removed")
+    for (cfg, views) in sorted(overall):
+        rs = overall[(cfg, views)]
+        gains = [r["filtered"]["psnr"] - r["baseline"]["psnr"] for r in rs]
+        exact = [r["exact"]["psnr"] - r["baseline"]["psnr"] for r in rs]
+        other = [100 * r["other_removed"] for r in rs]
+        clean = [r["clean_filtered"]["psnr"] - r["clean_baseline"]["psnr"] for r in rs]
+        crm = [100 * r["clean_removed"] for r in rs]
+        print(f"{cfg:15s} {views:5d}  {len(rs):5d}  {sum(gains) / len(gains):+5.2f} "
+              f"({100 * sum(gains) / sum(exact):3.0f} %)       "
+              f"{sum(r['recall'] for r in rs) / len(rs):6.3f}  "
+              f"{sum(other) / len(other):.2f} % ({max(other):.2f} %)  "
+              f"{sum(clean) / len(clean):+.3f} ({min(clean):+.3f})  "
+              f"{sum(crm) / len(crm):.2f} % ({max(crm):.2f} %)")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from clearsplat.synth.realism import realistic_reconstruction
 
 NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
            refine_tolerance=2, min_relative_score=0.3, refine_passes=2, expand_connected=True,
-           refine_tolerance_depth=False, depth_scale_reach=3)
+           refine_tolerance_depth=False, depth_scale_reach=3, rounds=2)
 
 
 def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
@@ -136,11 +136,12 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         assert cfg.min_relative_score == 0.0
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
         assert not cfg.expand_connected and cfg.refine_tolerance_depth
-        assert cfg.depth_scale_reach == 0
+        assert cfg.depth_scale_reach == 0 and cfg.rounds == 1
     for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
                        ("verify_tolerance", True), ("min_relative_score", 1.0),
                        ("min_relative_score", -0.1), ("refine_passes", 0),
-                       ("refine_passes", 1.5), ("verify_mask", "none")):
+                       ("refine_passes", 1.5), ("verify_mask", "none"), ("rounds", 0),
+                       ("rounds", 2.5)):
         with pytest.raises(ClearsplatError) as e:
             FilterConfig(**{field: bad})
         assert e.value.field == field
@@ -157,7 +158,8 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     ex = get_extractor("local")
     off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
                refine_tolerance=0, min_relative_score=0.0, refine_passes=1,
-               expand_connected=False, refine_tolerance_depth=True, depth_scale_reach=0)
+               expand_connected=False, refine_tolerance_depth=True, depth_scale_reach=0,
+               rounds=1)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -176,7 +178,8 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
                                                          photometric_align=False,
                                                          refine_passes=1,
                                                          expand_connected=False,
-                                                         refine_tolerance_depth=True),
+                                                         refine_tolerance_depth=True,
+                                                         rounds=1),
                               extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
                              extractor=ex)
@@ -329,3 +332,59 @@ def test_local_depth_scales_follow_a_slow_ramp_and_ignore_a_small_object():
     bad[:10] = -1
     s3, _ = local_depth_scales(own.ravel(), ref.ravel(), bad, h, w)
     assert (s3[:10] == 1).all()
+
+
+def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
+    """``rounds=2`` is the filter run once, then run again on the scene without what it
+    removed, the second run's removals and candidates mapped back to the whole scene."""
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    one = FilterConfig(rounds=1)
+    first = filter_distractors(scene, config=one, extractor=ex)
+    kept = np.flatnonzero(first.keep)
+    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+    assert not second.keep.all(), "the scene should have something for a second round to find"
+    res = filter_distractors(scene, config=FilterConfig(rounds=2), extractor=ex)
+    expect = first.keep.copy()
+    expect[kept[~second.keep]] = False
+    np.testing.assert_array_equal(res.keep, expect)
+    assert len(res.candidates) == len(first.candidates) + len(second.candidates)
+    assert [c.index for c in res.candidates] == list(range(len(res.candidates)))
+    later = res.candidates[len(first.candidates):]
+    assert {c.round for c in res.candidates[:len(first.candidates)]} == {1}
+    assert {c.round for c in later} == {2}
+    for c, c2 in zip(later, second.candidates):
+        np.testing.assert_array_equal(c.gaussians, kept[c2.gaussians])
+        assert first.keep[c.gaussians].all()        # never one the first round removed
+        if c.accepted:
+            assert not res.keep[c.expanded].any()
+    assert res.stats["views_prepared"] == 2 * scene.num_views
+    assert res.timings["total"] == pytest.approx(res.timings["proposal"]
+                                                 + res.timings["verification"])
+    assert res.summary()["candidates"][-1]["round"] == 2
+
+
+def test_rounds_stop_when_a_round_removes_nothing(soft_scene, monkeypatch):
+    import clearsplat.filter.pipeline as pipeline
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    calls = []
+    run = pipeline._filter_round
+
+    def counted(sc, *args):
+        out = run(sc, *args)
+        calls.append(int((~out.keep).sum()))
+        return out
+
+    monkeypatch.setattr(pipeline, "_filter_round", counted)
+    res = filter_distractors(scene, config=FilterConfig(rounds=6), extractor=ex)
+    assert 2 <= len(calls) <= 6
+    assert calls[-1] == 0 or len(calls) == 6
+    assert all(k > 0 for k in calls[:-1])
+    assert int((~res.keep).sum()) == sum(calls)
+    # A clean scene where the first round removes nothing: no second round.
+    clean, _ = realistic_reconstruction(make_world("street", num_views=3, seed=2, height=48,
+                                                   width=80), "plain", seed=2, clean=True)
+    calls.clear()
+    res = filter_distractors(clean, config=FilterConfig(rounds=6), extractor=ex)
+    assert calls == [0] and res.keep.all()

@@ -49,6 +49,7 @@ ABLATIONS = {
     "mask-proposals": "default+verify_mask=proposals+revealing",
     "no-expand-conn": "default+expand_connected=false",
     "tol-depth": "default+refine_tolerance_depth=true",
+    "one-round": "default+rounds=1",
     "+photo-align": "default+photometric_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",

@@ -267,6 +267,14 @@ class FilterConfig:
         condition holds there: the support is judged per patch, and a distractor's patches
         where the other views render little, or at a similar mean depth, drop out of the
         paper's expansion. False: the paper (dilation within the support only).
+    rounds : int
+        How often the whole procedure runs. Each later round runs it again on the Gaussians
+        the earlier rounds kept, so that the distractors found so far no longer stand in the
+        exclusion renders, the support condition and the static reference of the others:
+        another view's distractor in front of a view's own hides it there (no farther
+        surface is revealed, or the static reference is nearer), and one at nearly the same
+        place (someone walking) lends it support. Stops early when a round removes nothing.
+        1: the paper (a single run).
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -307,6 +315,7 @@ class FilterConfig:
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
     depth_scale_reach: int = 0
+    rounds: int = 2
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -404,6 +413,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "expand_connected": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
     "depth_scale_reach": FieldSpec("integer", 0),
+    "rounds": FieldSpec("integer", 1),
 }
 
 
@@ -417,7 +427,7 @@ PRESETS = {
                           verify_tolerance=0, refine_tolerance=0,
                           min_relative_score=0.0, refine_passes=1,
                           expand_connected=False, refine_tolerance_depth=True,
-                          depth_scale_reach=0),
+                          depth_scale_reach=0, rounds=1),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -425,5 +435,5 @@ PRESETS = {
                                 verify_tolerance=0, refine_tolerance=0,
                                 min_relative_score=0.0, refine_passes=1,
                                 expand_connected=False, refine_tolerance_depth=True,
-                                depth_scale_reach=0),
+                                depth_scale_reach=0, rounds=1),
 }

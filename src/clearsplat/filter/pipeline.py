@@ -66,6 +66,8 @@ class Candidate:
     accepted : bool
     reason : str
         Why it was accepted or rejected.
+    round : int
+        The round of the procedure that found it (``FilterConfig.rounds``).
     """
 
     index: int
@@ -78,6 +80,7 @@ class Candidate:
     scores: dict = field(default_factory=dict)
     accepted: bool = False
     reason: str = "not verified"
+    round: int = 1
 
     def __repr__(self) -> str:
         scores = ", ".join(f"{k} {v:+.4f}" for k, v in self.scores.items())
@@ -93,7 +96,7 @@ class Candidate:
             "expanded_gaussians": None if self.expanded is None else int(self.expanded.size),
             "verify_views": list(self.verify_views),
             "scores": {k: float(v) for k, v in self.scores.items()},
-            "accepted": bool(self.accepted), "reason": self.reason,
+            "accepted": bool(self.accepted), "reason": self.reason, "round": self.round,
         }
 
 
@@ -107,7 +110,7 @@ class FilterResult:
         False for the Gaussians to remove (set their opacity to zero).
     candidates : list of Candidate
     proposals : list of ViewProposal
-        Per input view: similarity map, support, ranges, proposal masks.
+        Per input view: similarity map, support, ranges, proposal masks (of the first round).
     timings : dict of str to float
         Seconds per stage.
     config : FilterConfig
@@ -195,12 +198,57 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         raise ClearsplatError("the filter needs the input images", field="images")
     scene.validate()
     n = len(scene)
-    timings = {"proposal": 0.0, "verification": 0.0}
     if scene.num_views < 2 or n == 0:
         msg = ("a single input view: nothing can verify it, the scene is returned unchanged"
                if scene.num_views < 2 else "the scene has no Gaussians")
         warnings.warn(msg, stacklevel=2)
-        return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
+        return FilterResult(np.ones(n, bool), [], [], {"proposal": 0.0, "verification": 0.0},
+                            config, [msg])
+    if extractor is None:
+        # Only the DINO extractors take a checkpoint; the others ignore a global --checkpoint.
+        dino = config.features.startswith("dino") and config.checkpoint
+        extractor = get_extractor(config.features,
+                                  **({"checkpoint": config.checkpoint} if dino else {}))
+    report = progress or (lambda stage, done, total: None)
+    result = _filter_round(scene, config, extractor, report)
+    for round_ in range(2, config.rounds + 1):
+        kept = np.flatnonzero(result.keep)
+        if kept.size == n:          # nothing removed: a new round would find the same
+            break
+        named = (lambda r: lambda stage, done, total: report(f"{stage} (round {r})", done,
+                                                            total))(round_)
+        later = _filter_round(scene.subset(kept), config, extractor, named)
+        _merge_round(result, later, kept, round_)
+        if later.keep.all():        # nothing new: a further round would find the same
+            break
+    return result
+
+
+def _merge_round(result: FilterResult, later: FilterResult, kept: np.ndarray,
+                 round_: int) -> None:
+    """Fold a later round's result, run on the Gaussians ``kept`` ((M,) int indices), into
+    ``result``: its removals, candidates (re-indexed to the whole scene), timings, stats."""
+    result.keep[kept[~later.keep]] = False
+    offset = len(result.candidates)
+    for c in later.candidates:
+        c.index += offset
+        c.round = round_
+        c.gaussians = kept[c.gaussians]
+        if c.expanded is not None:
+            c.expanded = kept[c.expanded]
+        result.candidates.append(c)
+    for k, v in later.timings.items():
+        result.timings[k] = result.timings.get(k, 0.0) + v
+    for k, v in later.stats.items():
+        peak = k.endswith("_bytes")
+        result.stats[k] = max(result.stats.get(k, 0), v) if peak else result.stats.get(k, 0) + v
+    result.warnings.extend(w for w in later.warnings if w not in result.warnings)
+
+
+def _filter_round(scene: Scene, config: FilterConfig, extractor, report) -> FilterResult:
+    """One run of the procedure on ``scene`` (at least two views and one Gaussian)."""
+    n = len(scene)
+    timings = {"proposal": 0.0, "verification": 0.0}
     on_gpu = config.device != "cpu"
     # Tile patches are a CPU feature: on a GPU every verification render is a whole image.
     # The incremental path also leaves out the views a removal cannot change.
@@ -208,12 +256,6 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     budget = None if config.view_memory is None else int(config.view_memory * 1e9)
     if not on_gpu:  # the GPU path holds only images and masks on the host
         check_memory(estimate_filter_memory(n, scene.cameras, view_budget=budget))
-    report = progress or (lambda stage, done, total: None)
-    if extractor is None:
-        # Only the DINO extractors take a checkpoint; the others ignore a global --checkpoint.
-        dino = config.features.startswith("dino") and config.checkpoint
-        extractor = get_extractor(config.features,
-                                  **({"checkpoint": config.checkpoint} if dino else {}))
     tau1 = extractor.tau1 if config.tau1 is None else config.tau1
     tau2 = extractor.tau2 if config.tau2 is None else config.tau2
     threads = config.num_threads
@@ -250,7 +292,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     if not any_visible:
         msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
                "can be verified, the scene is returned unchanged")
-        warnings.warn(msg, stacklevel=2)
+        warnings.warn(msg, stacklevel=3)
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
     images = _aligned_images(scene, excl, config)
     sims = extractor.similarity(np.stack(images), np.stack([r.rgb for r in excl]))
