@@ -388,3 +388,26 @@ def test_rounds_stop_when_a_round_removes_nothing(soft_scene, monkeypatch):
     calls.clear()
     res = filter_distractors(clean, config=FilterConfig(rounds=6), extractor=ex)
     assert calls == [0] and res.keep.all()
+
+
+def test_rounds_auto_runs_a_second_round_from_eight_views(monkeypatch):
+    import clearsplat.filter.pipeline as pipeline
+    ex = get_extractor("local")
+    calls = []
+    run = pipeline._filter_round
+
+    def counted(sc, *args):
+        out = run(sc, *args)
+        calls.append(int((~out.keep).sum()))
+        return out
+
+    monkeypatch.setattr(pipeline, "_filter_round", counted)
+    for views, expect in ((pipeline._SECOND_ROUND_MIN_VIEWS - 1, 1),
+                          (pipeline._SECOND_ROUND_MIN_VIEWS, 2)):
+        world = make_world("object", num_views=views, seed=0, height=32, width=56)
+        scene, _ = realistic_reconstruction(world, "plain", seed=0)
+        calls.clear()
+        filter_distractors(scene, config=FilterConfig(), extractor=ex)
+        assert calls[0] > 0                         # the first round removes something
+        assert len(calls) == expect
+    assert FilterConfig().rounds == "auto" and FilterConfig(rounds="auto").rounds == "auto"

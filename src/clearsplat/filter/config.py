@@ -274,7 +274,8 @@ class FilterConfig:
         another view's distractor in front of a view's own hides it there (no farther
         surface is revealed, or the static reference is nearer), and one at nearly the same
         place (someone walking) lends it support. Stops early when a round removes nothing.
-        1: the paper (a single run).
+        ``"auto"``: two rounds from eight views on, one below (measured: with four views the
+        second round gains 0.02 dB for half again the time). 1: the paper (a single run).
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -315,7 +316,7 @@ class FilterConfig:
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
     depth_scale_reach: int = 0
-    rounds: int = 2
+    rounds: int | str = "auto"
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -413,7 +414,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "expand_connected": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
     "depth_scale_reach": FieldSpec("integer", 0),
-    "rounds": FieldSpec("integer", 1),
+    "rounds": FieldSpec("integer", 1, also=("auto",)),
 }
 
 
