@@ -390,7 +390,7 @@ def test_rounds_stop_when_a_round_removes_nothing(soft_scene, monkeypatch):
     assert calls == [0] and res.keep.all()
 
 
-def test_rounds_auto_runs_a_second_round_from_eight_views(monkeypatch):
+def test_rounds_auto_runs_a_second_round_from_sixteen_views(monkeypatch):
     import clearsplat.filter.pipeline as pipeline
     ex = get_extractor("local")
     calls = []
