@@ -45,6 +45,8 @@ def main(argv=None) -> int:
     p.add_argument("--family", default="object")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--keep", help="build the bundle in (and keep) this folder")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a filter option, passed on to clearsplat filter (repeatable)")
     args = p.parse_args(argv)
     h, w = (int(x) for x in args.resolution.lower().split("x"))
 
@@ -63,12 +65,14 @@ def main(argv=None) -> int:
     _timed([sys.executable, "-c", "import clearsplat.cli"], env)      # warm the bytecode cache
     imports = [_timed([sys.executable, "-c", "import clearsplat.cli"], env)
                for _ in range(args.repeats)]
-    runs = [_timed(exe + ["filter", bundle, "--out", out, "--force"], env)
+    options = [a for kv in args.set for a in ("--set", kv)]
+    runs = [_timed(exe + ["filter", bundle, "--out", out, "--force"] + options, env)
             for _ in range(args.repeats)]
     walls = [r[0] for r in runs]
     print(f"clearsplat filter, whole process — {args.family}, {args.views} views at {w}x{h}, "
           f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
-          f"{os.getloadavg()[0]:.1f}; {args.repeats} runs")
+          f"{os.getloadavg()[0]:.1f}; {args.repeats} runs"
+          + (f"; {' '.join(args.set)}" if args.set else ""))
     print(f"  wall s: median {statistics.median(walls):.2f}, range {min(walls):.2f}-"
           f"{max(walls):.2f}; CPU s (all threads): median "
           f"{statistics.median(r[1] for r in runs):.2f}; peak RSS {max(r[2] for r in runs):.2f} GB")
