@@ -364,10 +364,10 @@ def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     assert res.summary()["candidates"][-1]["round"] == 2
 
 
-def test_rounds_stop_when_a_round_removes_nothing(soft_scene, monkeypatch):
+@pytest.fixture
+def round_calls(monkeypatch):
+    """The Gaussians each round of the filter removes, one entry per round run."""
     import clearsplat.filter.pipeline as pipeline
-    scene, _ = soft_scene
-    ex = get_extractor("local")
     calls = []
     run = pipeline._filter_round
 
@@ -377,6 +377,13 @@ def test_rounds_stop_when_a_round_removes_nothing(soft_scene, monkeypatch):
         return out
 
     monkeypatch.setattr(pipeline, "_filter_round", counted)
+    return calls
+
+
+def test_rounds_stop_when_a_round_removes_nothing(soft_scene, round_calls):
+    calls = round_calls
+    scene, _ = soft_scene
+    ex = get_extractor("local")
     res = filter_distractors(scene, config=FilterConfig(rounds=6), extractor=ex)
     assert 2 <= len(calls) <= 6
     assert calls[-1] == 0 or len(calls) == 6
@@ -390,18 +397,10 @@ def test_rounds_stop_when_a_round_removes_nothing(soft_scene, monkeypatch):
     assert calls == [0] and res.keep.all()
 
 
-def test_rounds_auto_runs_a_second_round_from_sixteen_views(monkeypatch):
+def test_rounds_auto_runs_a_second_round_from_sixteen_views(round_calls):
     import clearsplat.filter.pipeline as pipeline
+    calls = round_calls
     ex = get_extractor("local")
-    calls = []
-    run = pipeline._filter_round
-
-    def counted(sc, *args):
-        out = run(sc, *args)
-        calls.append(int((~out.keep).sum()))
-        return out
-
-    monkeypatch.setattr(pipeline, "_filter_round", counted)
     for views, expect in ((pipeline._SECOND_ROUND_MIN_VIEWS - 1, 1),
                           (pipeline._SECOND_ROUND_MIN_VIEWS, 2)):
         world = make_world("object", num_views=views, seed=0, height=32, width=56)
