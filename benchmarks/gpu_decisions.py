@@ -3,11 +3,12 @@
 Usage::
 
     python benchmarks/gpu_decisions.py [--views 8,16] [--resolution 256x448] [--family object]
+                                       [--set KEY=VALUE ...]
 
-For each view count, one stand-in scene; ``FilterConfig(device="cuda")`` runs twice (the GPU
-path must agree with itself) and ``FilterConfig()`` once on the CPU. Prints the seconds of
-each run, the Gaussians each removes, how many differ, the candidate counts and the largest
-difference of an individual score between candidates at the same index.
+For each view count, one stand-in scene; the default config (with the ``--set`` options) runs
+twice with ``device="cuda"`` (the GPU path must agree with itself) and once on the CPU. Prints
+the seconds of each run, the Gaussians each removes, how many differ, the candidate counts and
+the largest difference of an individual score between candidates at the same index.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import time
 import numpy as np
 
 from clearsplat.features import get_extractor
-from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter import filter_distractors
 from clearsplat.synth import make_world, reconstruct
 
 
@@ -28,7 +29,12 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", default="256x448", help="HxW")
     p.add_argument("--family", default="object")
     p.add_argument("--device", default="cuda")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a FilterConfig field for every run (repeatable), as clearsplat bench "
+                        "reads it")
     args = p.parse_args(argv)
+    from clearsplat.bench import parse_config
+    base = parse_config("+".join(["default"] + args.set))
     h, w = (int(x) for x in args.resolution.lower().split("x"))
     extractor = get_extractor("local")
     print(f"{'views':>5} {'run':>5} {'seconds':>8} {'removed':>9}")
@@ -36,8 +42,8 @@ def main(argv=None) -> int:
         world = make_world(args.family, num_views=views, seed=0, height=h, width=w)
         scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
         runs = {}
-        for name, cfg in (("gpu1", FilterConfig(device=args.device)),
-                          ("gpu2", FilterConfig(device=args.device)), ("cpu", FilterConfig())):
+        for name, cfg in (("gpu1", base.replace(device=args.device)),
+                          ("gpu2", base.replace(device=args.device)), ("cpu", base)):
             t = time.perf_counter()
             runs[name] = filter_distractors(scene, config=cfg, extractor=extractor)
             print(f"{views:>5} {name:>5} {time.perf_counter() - t:>8.2f} "
