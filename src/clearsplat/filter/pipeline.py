@@ -123,7 +123,9 @@ class FilterResult:
         again under ``config.view_memory``); ``views_peak_bytes``: most bytes the prepared
         views held at once; ``views_skipped``: (view, removal) pairs left out because the view
         sees none of the removal's Gaussians; ``views_pruned_bytes``: bytes the views held right
-        after ``config.prune_views`` pruned them (0 without it) (CPU only).
+        after ``config.prune_views`` pruned them (0 without it) (CPU only). With several
+        rounds (``config.rounds``) the counts and ``timings`` add up over the rounds and the
+        byte figures are the largest of any round.
     """
 
     keep: np.ndarray
