@@ -344,7 +344,10 @@ def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     kept = np.flatnonzero(first.keep)
     second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
     assert not second.keep.all(), "the scene should have something for a second round to find"
-    res = filter_distractors(scene, config=FilterConfig(rounds=2), extractor=ex)
+    stages = []
+    res = filter_distractors(scene, config=FilterConfig(rounds=2), extractor=ex,
+                             progress=lambda stage, done, total: stages.append(stage))
+    assert "render" in stages and "render (round 2)" in stages
     expect = first.keep.copy()
     expect[kept[~second.keep]] = False
     np.testing.assert_array_equal(res.keep, expect)

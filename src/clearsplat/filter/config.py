@@ -267,7 +267,7 @@ class FilterConfig:
         condition holds there: the support is judged per patch, and a distractor's patches
         where the other views render little, or at a similar mean depth, drop out of the
         paper's expansion. False: the paper (dilation within the support only).
-    rounds : int
+    rounds : int or "auto"
         How often the whole procedure runs. Each later round runs it again on the Gaussians
         the earlier rounds kept, so that the distractors found so far no longer stand in the
         exclusion renders, the support condition and the static reference of the others:

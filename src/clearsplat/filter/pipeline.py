@@ -223,13 +223,17 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
         kept = np.flatnonzero(result.keep)
         if kept.size == n:          # nothing removed: a new round would find the same
             break
-        named = (lambda r: lambda stage, done, total: report(f"{stage} (round {r})", done,
-                                                            total))(round_)
-        later = _filter_round(scene.subset(kept), config, extractor, named)
+        later = _filter_round(scene.subset(kept), config, extractor,
+                              _in_round(report, round_))
         _merge_round(result, later, kept, round_)
         if later.keep.all():        # nothing new: a further round would find the same
             break
     return result
+
+
+def _in_round(report: Progress, round_: int) -> Progress:
+    """``report`` with the stage names of a later round marked as such."""
+    return lambda stage, done, total: report(f"{stage} (round {round_})", done, total)
 
 
 def _merge_round(result: FilterResult, later: FilterResult, kept: np.ndarray,
