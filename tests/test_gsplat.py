@@ -568,10 +568,12 @@ def test_filter_on_gpu_path_equals_cpu_filter(fake_gsplat, monkeypatch):
     real = _gsplat.prepare_gsplat_views
     monkeypatch.setattr(_gsplat, "prepare_gsplat_views", on_cpu_torch)
     extractor = get_extractor("local")
-    cpu = filter_distractors(scene, extractor=extractor)
-    gpu = filter_distractors(scene, config=FilterConfig(device="cuda:0"), extractor=extractor)
-    # One upload of the Gaussians per round of the filter.
-    assert chosen == ["cuda:0"] * max(c.round for c in gpu.candidates)
+    # Two rounds: the second runs on the Gaussians the first kept, through the GPU path too.
+    cpu = filter_distractors(scene, config=FilterConfig(rounds=2), extractor=extractor)
+    gpu = filter_distractors(scene, config=FilterConfig(device="cuda:0", rounds=2),
+                             extractor=extractor)
+    assert chosen == ["cuda:0", "cuda:0"]      # one upload of the Gaussians per round
+    assert {c.round for c in gpu.candidates} == {1, 2}
     assert len(fake_gsplat.calls) > 10
     assert cpu.removed.sum() > 0
     np.testing.assert_array_equal(gpu.keep, cpu.keep)
