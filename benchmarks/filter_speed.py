@@ -15,7 +15,9 @@ re-rendered for every candidate and view); both runs must produce identical outp
 is the range of the incremental runs' totals, *first* the first of them (a fresh process: what
 a single ``clearsplat filter`` call sees, page faults of new memory included). *prepared* counts
 camera preparations per run (the number of views, plus views prepared again because they did
-not fit in ``--view-memory``), *skipped* the (view, pass) visits left out because the view sees
+not fit in ``--view-memory``; with several rounds, each round's), *derived* those of them that
+a later round took from the round before without projecting again
+(:meth:`~clearsplat.render.PreparedView.restrict`), *skipped* the (view, pass) visits left out because the view sees
 none of the Gaussians concerned, *views GB* the most the prepared views held at once; *CPU s*
 the process CPU time of a run (median; with ``--threads 1`` a measure of the work done that a
 busy machine disturbs far less than wall-clock time); *proposed* the share of the input pixels
@@ -101,6 +103,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "identical_output": bool(same),
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
         "views_prepared": inc[0]["stats"].get("views_prepared", 0),
+        "views_derived": inc[0]["stats"].get("views_derived", 0),
         "views_skipped": inc[0]["stats"].get("views_skipped", 0),
         "views_peak_gb": inc[0]["stats"].get("views_peak_bytes", 0) / 1e9,
         "views_pruned_gb": inc[0]["stats"].get("views_pruned_bytes", 0) / 1e9,
@@ -180,14 +183,14 @@ def main(argv=None) -> int:
               f"{str(r['identical_output']):>11}")
     base = next((r for r in rows if r["views"] == 8), rows[0])
     print(f"\n{'views':>5} {'CPU s':>7} {'x CPU':>6} {'x time':>7} {'x peak':>7} "
-          f"{'prepared':>9} {'skipped':>8} {'views GB':>9} {'pruned GB':>10} {'estimate GB':>12} "
+          f"{'prepared':>9} {'derived':>8} {'skipped':>8} {'views GB':>9} {'pruned GB':>10} {'estimate GB':>12} "
           f"{'proposed':>9}   "
           f"(x: against {base['views']} views)")
     for r in rows:
         print(f"{r['views']:>5} {r['cpu_s']:>7.2f} {r['cpu_s'] / base['cpu_s']:>6.2f} "
               f"{r['total_s'] / base['total_s']:>7.2f} "
               f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
-              f"{r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} {r['views_pruned_gb']:>10.2f} "
+              f"{r.get('views_derived', 0):>8} {r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} {r['views_pruned_gb']:>10.2f} "
               f"{r['memory_estimate_gb']:>12.2f} {100 * r.get('proposed_share', 0.0):>8.1f}%")
     steps = list(dict.fromkeys(k for r in rows for k in r["steps"]))
     print("\nwhere the time goes (seconds, medians):")

@@ -1,10 +1,11 @@
 """Pruned prepared views: every render of a subset containing the floor is unchanged, bit for
-bit, and the filter's output does not depend on pruning."""
+bit, and the filter's output does not depend on pruning. Subset views: the same arrays as
+preparing the subset scene."""
 
 import numpy as np
 import pytest
 
-from clearsplat import Scene
+from clearsplat import RenderSettings, Scene
 from clearsplat.errors import ClearsplatError
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
@@ -127,3 +128,46 @@ def test_filter_output_does_not_depend_on_pruning(street, preset):
         assert [x.record() for x in a.candidates] == [x.record() for x in other.candidates]
     assert a.stats["views_peak_bytes"] >= a.stats["views_pruned_bytes"]
     assert b.stats["views_pruned_bytes"] == 0
+
+
+_VIEW_ARRAYS = ("_splats", "_rects", "_index", "_offsets", "_lists")
+
+
+@pytest.mark.parametrize("n, settings", [
+    (4000, RenderSettings()), (4099, RenderSettings(antialiased=True, eps2d=0.1)),
+    (3001, RenderSettings(sh_degree=2))])
+def test_subset_view_equals_preparing_the_subset(n, settings):
+    rng = np.random.default_rng(n)
+    g = random_gaussians(rng, n, k=9, spread=0.8)
+    g.scales[:] *= 0.4
+    cam = make_camera(70, 45)
+    scene = Scene(g, rng.integers(0, 3, n).astype(np.int32), None, [cam], None, settings)
+    full = prepare(scene, cam, num_threads=2)
+    assert full.num_visible > n // 3
+    for share in (0.97, 0.5, 0.0):
+        keep = rng.random(n) < share
+        sub = scene.subset(np.flatnonzero(keep))
+        got = full.subset(keep)
+        assert got.num_gaussians == int(keep.sum())
+        before = full.render()
+        in_place = prepare(scene, cam, num_threads=2).restrict(keep)
+        for threads in (1, 3):     # nor do the arrays depend on the threads that prepared them
+            want = prepare(sub, cam, num_threads=threads)
+            for name in _VIEW_ARRAYS:
+                np.testing.assert_array_equal(getattr(got, name), getattr(want, name),
+                                              err_msg=name)
+                np.testing.assert_array_equal(getattr(in_place, name), getattr(want, name),
+                                              err_msg=name)
+        _same(full.render(), before)        # the subset copied: this view is unchanged
+        if keep.any():
+            _same(got.render(background=(0.1, 0.2, 0.3)),
+                  prepare(sub, cam).render(background=(0.1, 0.2, 0.3)))
+
+
+def test_subset_view_needs_a_whole_view(street):
+    full = prepare(street, street.cameras[0])
+    keep = np.ones(len(street), bool)
+    with pytest.raises(ClearsplatError, match="keep"):
+        full.subset(keep[:-1])
+    with pytest.raises(ClearsplatError, match="pruned"):
+        full.pruned(keep).subset(keep)

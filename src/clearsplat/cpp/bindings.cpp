@@ -104,6 +104,32 @@ nb::tuple bin_tiles(In<uint16_t> rects, int grid_w, int grid_h, int num_threads)
                           owned(r.lists, {size_t(r.num_pairs)}));
 }
 
+nb::tuple restrict_view(Out<float> splats, Out<uint16_t> rects, Out<int32_t> index,
+                        Out<int64_t> offsets, Out<int32_t> lists, In<uint8_t> keep) {
+    require(splats.ndim() == 2 && splats.shape(1) == 12, "splats must be (V, 12)");
+    const int64_t num = int64_t(splats.shape(0));
+    require(rects.ndim() == 2 && rects.shape(1) == 4 && int64_t(rects.shape(0)) == num &&
+                int64_t(index.size()) == num, "rects / index size");
+    const int64_t num_tiles = int64_t(offsets.size()) - 1;
+    const int64_t* off = offsets.data();
+    require(num_tiles >= 0 && off[0] == 0 && off[num_tiles] == int64_t(lists.size()),
+            "tile lists size");
+    for (int64_t t = 0; t < num_tiles; ++t) require(off[t] <= off[t + 1], "tile offsets order");
+    for (size_t e = 0; e < lists.size(); ++e)
+        require(lists.data()[e] >= 0 && int64_t(lists.data()[e]) < num, "tile list id");
+    int64_t new_num = 0, new_pairs = 0;
+    bool ok;
+    {
+        nb::gil_scoped_release release;
+        ok = cs::restrict_view(reinterpret_cast<cs::Splat*>(splats.data()),
+                               reinterpret_cast<cs::Rect*>(rects.data()), index.data(), num,
+                               offsets.data(), lists.data(), num_tiles, keep.data(),
+                               int64_t(keep.size()), new_num, new_pairs);
+    }
+    require(ok, "index out of range");
+    return nb::make_tuple(new_num, new_pairs);
+}
+
 nb::tuple tiles_touched(In<uint16_t> rects, In<int64_t> group_offsets, In<int32_t> ids,
                         int grid_w, int grid_h, int num_threads) {
     const int64_t groups = int64_t(group_offsets.size()) - 1;
@@ -270,6 +296,9 @@ NB_MODULE(_core, m) {
           "Project, cull and depth-sort: (splats (V, 12) f32, rects (V, 4) u16, index (V,) i32).");
     m.def("bin_tiles", &bin_tiles, "rects"_a, "grid_w"_a, "grid_h"_a, "num_threads"_a,
           "Tile lists: (offsets (T + 1,) i64, lists (P,) i32).");
+    m.def("restrict_view", &restrict_view, "splats"_a, "rects"_a, "index"_a, "offsets"_a,
+          "lists"_a, "keep"_a,
+          "Restrict a view to the kept Gaussians, renumbered, in place: (records, pairs).");
     m.def("tiles_touched", &tiles_touched, "rects"_a, "group_offsets"_a, "ids"_a, "grid_w"_a,
           "grid_h"_a, "num_threads"_a, "Sorted unique tiles per id group: (offsets, tiles).");
     m.def("composite", &composite, "splats"_a, "offsets"_a, "lists"_a, "keep"_a, "tiles"_a,

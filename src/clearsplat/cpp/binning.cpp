@@ -133,4 +133,48 @@ TileSets tiles_touched(const Rect* rects, const int64_t* group_offsets, const in
     return out;
 }
 
+bool restrict_view(Splat* splats, Rect* rects, int32_t* index, int64_t num, int64_t* offsets,
+                   int32_t* lists, int64_t num_tiles, const uint8_t* keep, int64_t n,
+                   int64_t& new_num, int64_t& new_pairs) {
+    for (int64_t v = 0; v < num; ++v)
+        if (index[v] < 0 || int64_t(index[v]) >= n) return false;
+    // One pass each, front to back: every kept item moves to a position at or before its own,
+    // so nothing is overwritten before it is read. No new memory but the reused scratch (the
+    // first write to fresh pages costs more than these passes).
+    int32_t* rank = reinterpret_cast<int32_t*>(scratch(size_t(n + num + 1) * sizeof(int32_t)));
+    int32_t* new_id = rank + n;
+    int32_t run = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        rank[i] = run;
+        run += keep[i] != 0;
+    }
+    int64_t at = 0;
+    for (int64_t v = 0; v < num; ++v) {
+        if (!keep[index[v]]) {
+            new_id[v] = -1;
+            continue;
+        }
+        new_id[v] = int32_t(at);
+        splats[at] = splats[v];
+        rects[at] = rects[v];
+        index[at] = rank[index[v]];
+        ++at;
+    }
+    new_num = at;
+    at = 0;
+    int64_t from = offsets[0];
+    for (int64_t t = 0; t < num_tiles; ++t) {
+        const int64_t to = offsets[t + 1];
+        offsets[t] = at;
+        for (int64_t e = from; e < to; ++e) {
+            const int32_t id = new_id[lists[e]];
+            if (id >= 0) lists[at++] = id;
+        }
+        from = to;
+    }
+    offsets[num_tiles] = at;
+    new_pairs = at;
+    return true;
+}
+
 }  // namespace cs

@@ -78,9 +78,14 @@ CS_INLINE m4 centre_range(d4 c, d4 e, d4 last, d4& lo, d4& hi) {
 // opacities (clamped at 0; Cephes logf polynomial, about 1e-7 relative error, covered by the
 // padding of the box).
 inline void box_radius2(const float* opacity, int cnt, double* e2) {
-    int j = 0;
-    for (; j + 8 <= cnt; j += 8) {
-        f8 x = load(opacity + j) * 255.0f;
+    // Every Gaussian goes through the same eight-lane polynomial (a short last group is
+    // padded), so its box depends on its opacity alone, not on where it falls in a block: a
+    // subset of the Gaussians projects to the same boxes.
+    for (int j = 0; j < cnt; j += 8) {
+        alignas(32) float lanes[8] = {1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f};
+        const int len = std::min(8, cnt - j);
+        std::memcpy(lanes, opacity + j, size_t(len) * sizeof(float));
+        f8 x = load(lanes) * 255.0f;
         x = select(x > 1.0f, x, splat(1.0f));  // o < 1/255 is culled anyway
         const i8 bits = (i8)x;
         f8 e = __builtin_convertvector(((bits >> 23) & 0xff) - 126, f8);
@@ -103,9 +108,8 @@ inline void box_radius2(const float* opacity, int cnt, double* e2) {
         y = y - 0.5f * z;
         const f8 ln = m + y + e * 0.693359375f;
         const f8 r = 2.0f * ln;
-        for (int l = 0; l < 8; ++l) e2[j + l] = r[l] > 0.0f ? double(r[l]) : 0.0;
+        for (int l = 0; l < len; ++l) e2[j + l] = r[l] > 0.0f ? double(r[l]) : 0.0;
     }
-    for (; j < cnt; ++j) e2[j] = std::max(0.0, 2.0 * std::log(std::max(1.0, 255.0 * double(opacity[j]))));
 }
 
 // Projects Gaussians [i0, i0 + cnt) into `b`; b.ok[j] is 0 where a Gaussian is culled (behind

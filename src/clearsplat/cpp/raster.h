@@ -95,6 +95,14 @@ struct TileSets {
 TileSets tiles_touched(const Rect* rects, const int64_t* group_offsets, const int32_t* ids,
                        int64_t num_groups, int grid_w, int grid_h, int num_threads);
 
+// Restricts a prepared view, in place, to the subset `keep` (n,) of its scene's Gaussians,
+// renumbered as the subset scene numbers them: the records, ids and tile lists of the kept
+// Gaussians move to the front of their arrays, in their order; `offsets` is rewritten. Sets
+// the new record and pair counts; false (nothing changed) if an id is out of range.
+bool restrict_view(Splat* splats, Rect* rects, int32_t* index, int64_t num, int64_t* offsets,
+                   int32_t* lists, int64_t num_tiles, const uint8_t* keep, int64_t n,
+                   int64_t& new_num, int64_t& new_pairs);
+
 // Composite `tiles` (all when tiles == null) into full images (H, W, 3), (H, W), (H, W).
 void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tiles,
                      int64_t num_tiles, const float bg[3], float* rgb, float* alpha,

@@ -120,7 +120,9 @@ class FilterResult:
     warnings : list of str
     stats : dict
         ``views_prepared``: camera preparations made (the number of views, plus those prepared
-        again under ``config.view_memory``); ``views_peak_bytes``: most bytes the prepared
+        again under ``config.view_memory``); ``views_derived``: those a later round took from
+        the round before (restricted to the Gaussians it kept, not projected again);
+        ``views_peak_bytes``: most bytes the prepared
         views held at once; ``views_skipped``: (view, removal) pairs left out because the view
         sees none of the removal's Gaussians; ``views_pruned_bytes``: bytes the views held right
         after ``config.prune_views`` pruned them (0 without it) (CPU only). With several
@@ -218,17 +220,33 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     rounds = config.rounds
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
-    result = _filter_round(scene, config, extractor, report)
+    result, carry = _filter_round(scene, config, extractor, report, hold=rounds > 1)
     for round_ in range(2, rounds + 1):
         kept = np.flatnonzero(result.keep)
         if kept.size == n:          # nothing removed: a new round would find the same
             break
-        later = _filter_round(scene.subset(kept), config, extractor,
-                              _in_round(report, round_))
+        later, carry = _filter_round(scene.subset(kept), config, extractor,
+                                     _in_round(report, round_), previous=carry,
+                                     hold=round_ < rounds)
         _merge_round(result, later, kept, round_)
         if later.keep.all():        # nothing new: a further round would find the same
             break
+    if carry is not None:
+        carry.views.release()
     return result
+
+
+@dataclass
+class _Carry:
+    """What a round hands to the next on the CPU: its prepared views (those still held), its
+    renders R_i and R_i^-i, and which of its Gaussians it kept ((N,) bool). The next round,
+    on the kept Gaussians, takes its views from these (:meth:`PreparedView.subset`) and
+    composites again only the tiles that the removed Gaussians touched; both are exact."""
+
+    views: PreparedViews
+    full: list
+    excl: list
+    keep: np.ndarray
 
 
 def _in_round(report: Progress, round_: int) -> Progress:
@@ -257,8 +275,15 @@ def _merge_round(result: FilterResult, later: FilterResult, kept: np.ndarray,
     result.warnings.extend(w for w in later.warnings if w not in result.warnings)
 
 
-def _filter_round(scene: Scene, config: FilterConfig, extractor, report) -> FilterResult:
-    """One run of the procedure on ``scene`` (at least two views and one Gaussian)."""
+def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
+                  previous: _Carry | None = None, hold: bool = False
+                  ) -> tuple[FilterResult, _Carry | None]:
+    """One run of the procedure on ``scene`` (at least two views and one Gaussian).
+
+    ``previous``: what the round before handed on, ``scene`` being its kept Gaussians.
+    ``hold``: hand this round's views and renders on (when the path allows it) instead of
+    releasing them.
+    """
     n = len(scene)
     timings = {"proposal": 0.0, "verification": 0.0}
     on_gpu = config.device != "cpu"
@@ -278,13 +303,19 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report) -> Filt
     index = ViewIndex(scene)
     own = [index.mask(i, n) for i in range(scene.num_views)]
     full, excl = [], []
+    touched: dict = {}      # view -> tiles the previous round's removals touched there
     if on_gpu:  # one upload of the Gaussians, shared by the views
         from ..render.gsplat import prepare_gsplat_views
         views = prepare_gsplat_views(scene, scene.cameras, device=config.device)
     else:
-        views = PreparedViews(n, scene.cameras,
-                              lambda i: prepare(scene, scene.cameras[i], num_threads=threads),
-                              budget=budget)
+        def make(i: int):
+            old = None if previous is None else previous.views.take(i)
+            if old is None:
+                return prepare(scene, scene.cameras[i], num_threads=threads)
+            touched[i] = old.tiles_touched(~previous.keep)
+            return old.restrict(previous.keep)
+
+        views = PreparedViews(n, scene.cameras, make, budget=budget)
     # Per view j, how many centres of each view's Gaussians it sees inside its image (for the
     # choice of verification views), counted while the view is at hand.
     seen_counts = np.zeros((scene.num_views, scene.num_views), dtype=np.int64)
@@ -296,16 +327,29 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report) -> Filt
         if not on_gpu:
             seen_counts[i] = np.bincount(scene.view_id[pv.centres_inside()],
                                          minlength=scene.num_views)
-        r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
+        if i in touched:    # the previous round's renders, where its removals changed nothing
+            r_full, r_excl = pv.render_pair(keep=~own[i], tiles=touched[i],
+                                            start=previous.full[i])
+            outside = ~_tile_pixels(pv, touched[i])
+            for a, b in zip(r_excl, previous.excl[i]):
+                a[outside] = b[outside]
+        else:
+            r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
         full.append(r_full)
         excl.append(r_excl)
         lap("exclusion_renders")
         report("render", i + 1, scene.num_views)
+    if previous is not None:    # every view taken or prepared again: drop what is left
+        previous.views.release()
+        previous.full.clear()
+        previous.excl.clear()
     if not any_visible:
         msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
                "can be verified, the scene is returned unchanged")
         warnings.warn(msg, stacklevel=3)
-        return FilterResult(np.ones(n, bool), [], [], timings, config, [msg])
+        if isinstance(views, PreparedViews):
+            views.release()
+        return FilterResult(np.ones(n, bool), [], [], timings, config, [msg]), None
     images = _aligned_images(scene, excl, config)
     sims = extractor.similarity(np.stack(images), np.stack([r.rgb for r in excl]))
     lap("features")
@@ -422,13 +466,27 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report) -> Filt
         if c.accepted and c.expanded is not None:
             keep[c.expanded] = False
     timings["verification"] = time.perf_counter() - t0
-    stats = {}
+    stats, carry = {}, None
     if isinstance(views, PreparedViews):
-        stats = {"views_prepared": views.prepared, "views_peak_bytes": views.peak_bytes,
-                 "views_skipped": views.skipped, "views_pruned_bytes": views.pruned_bytes}
-        views.release()
+        stats = {"views_prepared": views.prepared, "views_derived": len(touched),
+                 "views_peak_bytes": views.peak_bytes, "views_skipped": views.skipped,
+                 "views_pruned_bytes": views.pruned_bytes}
+        if hold and incremental and not config.prune_views:
+            carry = _Carry(views, full, excl, keep)
+        else:
+            views.release()
     timings["total"] = timings["proposal"] + timings["verification"]
-    return FilterResult(keep, candidates, proposals, timings, config, stats=stats)
+    return FilterResult(keep, candidates, proposals, timings, config, stats=stats), carry
+
+
+def _tile_pixels(view, tiles: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of ``tiles`` (tile ids) of a prepared view."""
+    rows, cols = view.grid
+    on = np.zeros(rows * cols, dtype=bool)
+    on[np.asarray(tiles, dtype=np.int64)] = True
+    size = view.tile_size
+    grid = np.repeat(np.repeat(on.reshape(rows, cols), size, axis=0), size, axis=1)
+    return grid[:view.camera.height, :view.camera.width]
 
 
 def _static_revealing(scene, index, views, excl, own, proposed, images, radii, config,

@@ -172,6 +172,20 @@ def live_entries(splats, offsets, lists, floor, width: int, height: int,
     return live.view(np.bool_)
 
 
+def restrict_view(splats, rects, index, offsets, lists, keep) -> tuple[int, int]:
+    """Restrict a prepared view's arrays, in place, to the subset ``keep`` (N,) bool of its
+    scene, renumbered as the subset scene: the kept records and tile-list entries move to the
+    front of their arrays and ``offsets`` is rewritten. Returns the new counts of records and
+    entries. The arrays must be C-contiguous and of the kernel's dtypes."""
+    for a, dt in ((splats, np.float32), (rects, np.uint16), (index, np.int32),
+                  (offsets, np.int64), (lists, np.int32)):
+        if a.dtype != dt or not a.flags.c_contiguous or not a.flags.writeable:
+            raise ValueError("restrict_view needs writeable C-contiguous arrays of the "
+                             "prepared view's dtypes")
+    num, pairs = _core.restrict_view(splats, rects, index, offsets, lists, _mask(keep))
+    return int(num), int(pairs)
+
+
 def take_mask(mask: np.ndarray, index: np.ndarray) -> np.ndarray:
     """``mask[index]`` for an (N,) bool mask and int32 indices, as (V,) bool (``np.take`` widens
     the indices to int64 first)."""

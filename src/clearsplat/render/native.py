@@ -86,7 +86,9 @@ class PreparedView(_TiledView):
     def memory_bytes(self) -> int:
         arrays = [self._splats, self._rects, self._index, self._offsets, self._lists]
         arrays += [a for a in (self._visible_id, self._floor) if a is not None]
-        return int(sum(a.nbytes for a in arrays))
+        # A restricted view holds the front of its arrays, and the whole of them in memory.
+        return int(sum(a.base.nbytes if isinstance(a.base, np.ndarray) else a.nbytes
+                       for a in arrays))
 
     def centres_inside(self) -> np.ndarray:
         """(N,) bool: the visible Gaussians whose projected centre lies inside the image.
@@ -410,6 +412,63 @@ class PreparedView(_TiledView):
                             lists=new_id[lists], num_threads=self._num_threads)
         view._floor = floor_v[held]
         return view
+
+    def restrict(self, keep) -> "PreparedView":
+        """Make this view, in place, the view of the subset scene
+        ``scene.subset(np.flatnonzero(keep))``, without projecting again; returns it.
+
+        Each Gaussian is projected on its own (its record does not depend on the others), the
+        depth sort is stable with ties in Gaussian order, and tile lists run front to back: so
+        dropping the Gaussians outside ``keep`` from the records and lists, and numbering the
+        rest as the subset does, gives the arrays that :func:`prepare` of the subset scene
+        computes, bit for bit. The arrays are reused (no new memory); renders made before
+        are not affected.
+
+        Parameters
+        ----------
+        keep : (N,) bool
+            Gaussians of the subset.
+
+        Returns
+        -------
+        PreparedView
+            This view, now of ``keep.sum()`` Gaussians indexed as the subset scene.
+        """
+        keep = _check_keep(keep, self.num_gaussians, "keep")
+        if keep is None:
+            raise ClearsplatError("expected an (N,) bool mask", field="keep")
+        if self._floor is not None:
+            raise ClearsplatError("a pruned view holds only part of the visible Gaussians and "
+                                  "cannot be restricted to a subset", field="keep")
+        arrays = [np.ascontiguousarray(a) for a in (self._splats, self._rects, self._index,
+                                                     self._offsets, self._lists)]
+        arrays = [a if a.flags.writeable else a.copy() for a in arrays]
+        splats, rects, index, offsets, lists = arrays
+        num, pairs = _kernels.restrict_view(splats, rects, index, offsets, lists, keep)
+        self._splats, self._rects, self._index = splats[:num], rects[:num], index[:num]
+        self._offsets, self._lists = offsets, lists[:pairs]
+        self.num_gaussians = int(np.count_nonzero(keep))
+        self._visible_id = None
+        return self
+
+    def subset(self, keep) -> "PreparedView":
+        """A new view of the subset scene ``scene.subset(np.flatnonzero(keep))``, without
+        projecting again (see :meth:`restrict`, which does the same in place).
+
+        Parameters
+        ----------
+        keep : (N,) bool
+
+        Returns
+        -------
+        PreparedView
+        """
+        view = PreparedView(camera=self.camera, num_gaussians=self.num_gaussians,
+                            splats=self._splats.copy(), rects=self._rects.copy(),
+                            index=self._index.copy(), offsets=self._offsets.copy(),
+                            lists=self._lists.copy(), num_threads=self._num_threads)
+        view._floor = self._floor
+        return view.restrict(keep)
 
     def contributions(self, mask, *, keep=None) -> Contributions:
         """Every ``(pixel, gaussian, alpha * T)`` the compositing adds where ``mask`` is True.
