@@ -415,3 +415,22 @@ def test_rounds_auto_runs_a_second_round_from_sixteen_views(round_calls):
         assert calls[0] > 0                         # the first round removes something
         assert len(calls) == expect
     assert FilterConfig().rounds == "auto" and FilterConfig(rounds="auto").rounds == "auto"
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_box_extreme_matches_scipy(seed):
+    from scipy import ndimage
+    from clearsplat.filter.robust import box_extreme
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 30, size=2)
+    a = rng.normal(size=(h, w, 3)).astype(np.float32 if seed % 2 else np.float64)
+    a[rng.random((h, w, 3)) < 0.1] = np.inf
+    for r in (0, 1, 3, 7):
+        size = (2 * r + 1, 2 * r + 1, 1)
+        for op, want in ((np.minimum, ndimage.minimum_filter), (np.maximum, ndimage.maximum_filter)):
+            got = box_extreme(a, r, op)
+            assert got.dtype == a.dtype
+            np.testing.assert_array_equal(got, want(a, size=size, mode="nearest"))
+        np.testing.assert_array_equal(box_extreme(a[..., 0], r, np.minimum),
+                                      ndimage.minimum_filter(a[..., 0], size=2 * r + 1,
+                                                             mode="nearest"))

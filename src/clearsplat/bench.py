@@ -17,6 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .filter import FilterConfig, filter_distractors
+from .filter.config import parse_value
 from .metrics import lpips, lpips_available, psnr, removal_stats, ssim
 from .render import render_batch
 from .synth import clean_reference, distractor_truth, make_world, reconstruct
@@ -74,21 +75,6 @@ def parse_config(spec: str) -> FilterConfig:
         raw[key] = v.strip()
     changes = {k: parse_value(v) for k, v in raw.items()}
     return FilterConfig.preset(preset.strip()).replace(**changes)
-
-
-def parse_value(text: str):
-    """``"true"``/``"false"``, ``"null"`` (None), ints and floats from text; other text as is."""
-    low = text.lower()
-    if low in ("true", "false"):
-        return low == "true"
-    if low == "null":
-        return None
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return text
 
 
 @dataclass

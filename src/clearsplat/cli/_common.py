@@ -40,11 +40,9 @@ class Bar:
 
 def config_from_args(args):
     """The :class:`~clearsplat.FilterConfig` that ``--preset``, ``--features``, ``--set`` name."""
-    from ..filter import FilterConfig
+    from ..filter.config import FilterConfig, parse_value
 
     overrides = {}
-    if args.set:
-        from ..bench import parse_value
     for item in args.set or []:
         if "=" not in item:
             raise ClearsplatError(f"expected KEY=VALUE, got {item!r}", field="--set")

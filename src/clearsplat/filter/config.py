@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import ClearsplatError
 
-__all__ = ["FilterConfig", "PRESETS", "FIELD_SPECS", "FieldSpec"]
+__all__ = ["FilterConfig", "PRESETS", "FIELD_SPECS", "FieldSpec", "parse_value"]
 
 
 @dataclass(frozen=True)
@@ -439,3 +439,18 @@ PRESETS = {
                                 expand_connected=False, refine_tolerance_depth=True,
                                 depth_scale_reach=0, rounds=1),
 }
+
+
+def parse_value(text: str):
+    """``"true"``/``"false"``, ``"null"`` (None), ints and floats from text; other text as is."""
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    if low == "null":
+        return None
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text

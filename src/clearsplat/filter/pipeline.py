@@ -21,7 +21,7 @@ from ..scene import Scene
 from .association import (ViewIndex, dilate, pixels_of, region_gaussians, revealing_gaussians,
                           verification_views)
 from .config import FilterConfig
-from .proposal import ViewProposal, propose_view
+from .proposal import ViewProposal, label8, propose_view
 from .robust import (misregistration, photometric_alignment, tolerant_images,
                      tolerant_reference)
 from .verify import Partial, Verifier
@@ -529,11 +529,10 @@ def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,
     Gaussians stand in front of the static reference, within the cells of similarity below
     tau2 (``expand_connected``); ``labels`` caches the components per view."""
     if view not in labels:
-        from scipy import ndimage       # only where the option is on: a cheaper import
         grow = pixels_of(scene, index, view, revealing)
         h, w = grow.shape
         grow &= upsample_nearest(proposal.similarity < tau2, h, w)
-        labels[view] = ndimage.label(grow, structure=np.ones((3, 3), bool))[0]
+        labels[view] = label8(grow)[0]
     lab = labels[view]
     touched = np.unique(lab[pixels])
     touched = touched[touched > 0]

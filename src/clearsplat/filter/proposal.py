@@ -156,33 +156,56 @@ def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
     """8-connected components of a (h, w) bool mask: labels 1..count (0 outside), numbered
     in the order of each component's first pixel in row-major order.
 
-    The numbering of ``scipy.ndimage.label`` with a 3x3 structure, without importing SciPy
-    (the masks are proposal grids of a few thousand cells).
+    The numbering of ``scipy.ndimage.label`` with a 3x3 structure, without importing SciPy.
+    Works on runs (horizontal stretches of True): two runs of neighbouring rows touch when
+    their column ranges overlap or meet at a corner; a union-find over the touching pairs
+    joins them, so the Python work grows with the runs, not the pixels.
     """
+    mask = np.asarray(mask, dtype=bool)
     h, w = mask.shape
     labels = np.zeros((h, w), dtype=np.int32)
-    fg = mask.tolist()
-    lab = [[0] * w for _ in range(h)]
-    count = 0
-    for y0, x0 in zip(*np.nonzero(mask)):
-        y0, x0 = int(y0), int(x0)
-        if lab[y0][x0]:
+    if not mask.any():
+        return labels, 0
+    padded = np.zeros((h, w + 2), dtype=np.int8)
+    padded[:, 1:-1] = mask
+    edges = np.diff(padded, axis=1)           # +1 where a run starts, -1 past its end
+    row_s, start = np.nonzero(edges == 1)
+    _, end = np.nonzero(edges == -1)          # exclusive; runs in row-major order
+    runs = start.size
+    first = np.searchsorted(row_s, np.arange(h + 1))   # runs of row y: first[y]:first[y + 1]
+    parent = list(range(runs))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for y in range(h - 1):
+        a0, a1, b0, b1 = first[y], first[y + 1], first[y + 1], first[y + 2]
+        if a0 == a1 or b0 == b1:
             continue
-        count += 1
-        lab[y0][x0] = count
-        stack = [(y0, x0)]
-        while stack:
-            y, x = stack.pop()
-            for yy in (y - 1, y, y + 1):
-                if 0 <= yy < h:
-                    row_fg, row_lab = fg[yy], lab[yy]
-                    for xx in (x - 1, x, x + 1):
-                        if 0 <= xx < w and row_fg[xx] and not row_lab[xx]:
-                            row_lab[xx] = count
-                            stack.append((yy, xx))
-    if count:
-        labels[...] = lab
-    return labels, count
+        # Runs [s, e) and [s', e') of the next row touch when s' <= e and s <= e'.
+        bs, be = start[b0:b1], end[b0:b1]
+        lo = np.searchsorted(be, start[a0:a1], side="left")    # first with e' >= s
+        hi = np.searchsorted(bs, end[a0:a1], side="right")     # past the last with s' <= e
+        for k in np.flatnonzero(hi > lo):
+            ra = root(a0 + int(k))
+            for b in range(b0 + int(lo[k]), b0 + int(hi[k])):
+                rb = root(b)
+                if ra != rb:        # the earlier run becomes the root: it comes first
+                    ra, rb = min(ra, rb), max(ra, rb)
+                    parent[rb] = ra
+    roots = np.array([root(a) for a in range(runs)], dtype=np.int64)
+    is_root = roots == np.arange(runs)
+    number = np.cumsum(is_root).astype(np.int32)     # a root's component number, in run order
+    run_label = number[roots]
+    flat = labels.reshape(-1)
+    lengths = end - start
+    offsets = np.repeat(row_s * w + start, lengths) + (
+        np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths))
+    flat[offsets] = np.repeat(run_label, lengths)
+    return labels, int(is_root.sum())
 
 
 def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
-           "tolerant_reference", "misregistration", "local_depth_scales"]
+           "tolerant_reference", "box_extreme", "misregistration", "local_depth_scales"]
 
 #: Pixels used for a fit need the render this opaque.
 _FIT_MIN_ALPHA = 0.9
@@ -121,12 +121,9 @@ def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.nd
 
 def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel minimum and maximum of ``image`` over a (2r+1)^2 window, (H, W, 3) each."""
-    from scipy import ndimage          # only where a tolerance is in use: a cheaper import
-
-    size = (2 * int(radius) + 1, 2 * int(radius) + 1, 1)
     image = np.asarray(image, dtype=np.float32)
-    return (ndimage.minimum_filter(image, size=size, mode="nearest"),
-            ndimage.maximum_filter(image, size=size, mode="nearest"))
+    return (box_extreme(image, int(radius), np.minimum),
+            box_extreme(image, int(radius), np.maximum))
 
 
 def misregistration(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray, *,
@@ -169,6 +166,28 @@ def misregistration(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.
     return 2 * max(abs(best[0]), abs(best[1]))
 
 
+def box_extreme(a: np.ndarray, radius: int, op=np.minimum) -> np.ndarray:
+    """The minimum (``op=np.minimum``) or maximum (``np.maximum``) of ``a`` over the
+    (2 radius + 1)-pixel square around each pixel of its first two axes, the border repeated
+    outwards (``scipy.ndimage.minimum_filter(a, size=(s, s, 1...), mode="nearest")``, without
+    importing SciPy). Separable: the rows, then the columns."""
+    out = np.asarray(a)
+    if radius <= 0:
+        return out.copy()
+    size = 2 * radius + 1
+    for axis in (0, 1):
+        pad = [(0, 0)] * out.ndim
+        pad[axis] = (radius, radius)
+        padded = np.pad(out, pad, mode="edge")
+        n = out.shape[axis]
+        lead = (slice(None),) * axis
+        acc = padded[lead + (slice(0, n),)].copy()
+        for k in range(1, size):
+            op(acc, padded[lead + (slice(k, k + n),)], out=acc)
+        out = acc
+    return out
+
+
 def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
                        ) -> tuple[list, list, list]:
     """The static reference of ``refine`` made tolerant to a misregistration of ``radius`` px
@@ -187,17 +206,12 @@ def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
             out_lo.append(rgb)
             out_hi.append(rgb)
             continue
-        from scipy import ndimage      # only where a tolerance is in use: a cheaper import
-
-        size = 2 * int(r) + 1
         far = np.where(d > 0, d, np.inf)
-        near = ndimage.minimum_filter(far, size=size, mode="nearest")
+        near = box_extreme(far, int(r), np.minimum)
         out_d.append(np.where(np.isfinite(near), near, 0.0))
         missing = np.isnan(rgb)
-        lo = ndimage.minimum_filter(np.where(missing, np.inf, rgb), size=(size, size, 1),
-                                    mode="nearest")
-        hi = ndimage.maximum_filter(np.where(missing, -np.inf, rgb), size=(size, size, 1),
-                                    mode="nearest")
+        lo = box_extreme(np.where(missing, np.inf, rgb), int(r), np.minimum)
+        hi = box_extreme(np.where(missing, -np.inf, rgb), int(r), np.maximum)
         out_lo.append(np.where(missing, np.nan, lo))
         out_hi.append(np.where(missing, np.nan, hi))
     return out_d, out_lo, out_hi
