@@ -6,7 +6,9 @@ compositing); every convention is on one page, ``docs/conventions.md`` ("Rasteri
 :func:`prepare_view` does projection, binning and sorting once; the :class:`PreparedView` it
 returns renders any subset (``keep``) and, exactly, only the tiles a removal can change
 (:meth:`PreparedView.rerender`, :meth:`PreparedView.rerender_tiles`);
-:meth:`PreparedView.pruned` drops what no render keeping a given set of Gaussians can reach.
+:meth:`PreparedView.pruned` drops what no render keeping a given set of Gaussians can reach;
+:meth:`PreparedView.restrict` (in place) and :meth:`PreparedView.subset` give the view of a
+subset scene without projecting again.
 
 A subset never changes the order of the remaining Gaussians (ties in depth are broken by
 Gaussian index), so rendering with ``keep`` equals rendering the subset scene bit for bit.
