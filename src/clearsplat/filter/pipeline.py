@@ -240,7 +240,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 class _Carry:
     """What a round hands to the next on the CPU: its prepared views (those still held), its
     renders R_i and R_i^-i, and which of its Gaussians it kept ((N,) bool). The next round,
-    on the kept Gaussians, takes its views from these (:meth:`PreparedView.subset`) and
+    on the kept Gaussians, takes its views from these (:meth:`PreparedView.restrict`) and
     composites again only the tiles that the removed Gaussians touched; both are exact."""
 
     views: PreparedViews
