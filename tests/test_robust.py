@@ -434,3 +434,26 @@ def test_box_extreme_matches_scipy(seed):
         np.testing.assert_array_equal(box_extreme(a[..., 0], r, np.minimum),
                                       ndimage.minimum_filter(a[..., 0], size=2 * r + 1,
                                                              mode="nearest"))
+
+
+def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene):
+    """Each round takes its views and renders from the round before (restricted, not prepared
+    again): the same as running the filter afresh on what the rounds before kept."""
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    one = FilterConfig(rounds=1)
+    kept = np.arange(len(scene))
+    runs = 0
+    for _ in range(3):
+        r = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+        runs += 1
+        if r.keep.all():
+            break
+        kept = kept[r.keep]
+    assert runs == 3, "the scene should give three rounds something to find"
+    res = filter_distractors(scene, config=FilterConfig(rounds=3), extractor=ex)
+    expect = np.zeros(len(scene), bool)
+    expect[kept] = True
+    np.testing.assert_array_equal(res.keep, expect)
+    assert {c.round for c in res.candidates} == {1, 2, 3}
+    assert res.stats["views_derived"] == 2 * scene.num_views
