@@ -48,3 +48,22 @@ def test_dilate_matches_scipy(seed):
     disk = (yy * yy + xx * xx) <= r * r
     want = ndimage.binary_dilation(mask, structure=disk) if r > 0 else mask
     assert np.array_equal(dilate(mask, r), want)
+
+
+def test_label8_long_chains_match_scipy():
+    """A serpentine (one component joined row pair by row pair), a comb whose teeth join only
+    at the bottom, and diagonal staircases (corner contacts only)."""
+    snake = np.zeros((41, 30), bool)
+    snake[::4] = True
+    snake[1::8, -1] = snake[2::8, -1] = snake[3::8, -1] = True
+    snake[5::8, 0] = snake[6::8, 0] = snake[7::8, 0] = True
+    comb = np.zeros((25, 31), bool)
+    comb[:, ::2] = True
+    comb[-1] = True
+    stairs = np.eye(30, dtype=bool) | np.eye(30, k=5, dtype=bool) | np.eye(30, k=-9, dtype=bool)
+    for mask in (snake, comb, stairs, stairs[::-1], ~stairs):
+        want, n_want = ndimage.label(mask, structure=np.ones((3, 3), bool))
+        got, n_got = label8(mask)
+        assert n_got == n_want
+        assert np.array_equal(got, want)
+    assert label8(snake)[1] == 1 and label8(comb)[1] == 1

@@ -457,3 +457,42 @@ def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene):
     np.testing.assert_array_equal(res.keep, expect)
     assert {c.round for c in res.candidates} == {1, 2, 3}
     assert res.stats["views_derived"] == 2 * scene.num_views
+
+
+def test_second_round_memory_check_counts_what_the_first_hands_on(soft_scene, monkeypatch):
+    """The views and renders round 1 hands on become round 2's (or are dropped) as it goes:
+    the check before round 2 counts them as available instead of needing them twice."""
+    import clearsplat.filter.pipeline as pipeline
+    scene, _ = soft_scene
+    calls = []
+    monkeypatch.setattr(pipeline, "check_memory",
+                        lambda estimate, available=None: calls.append((estimate, available)))
+    monkeypatch.setattr(pipeline, "available_memory", lambda: 10**6)
+    res = filter_distractors(scene, config=FilterConfig(rounds=2),
+                             extractor=get_extractor("local"))
+    assert max(c.round for c in res.candidates) == 2
+    (_, first), (_, second) = calls
+    assert first is None                # round 1: the check reads the system itself
+    held = res.stats["views_peak_bytes"]
+    assert 10**6 < second and second - 10**6 >= 0.5 * held   # round 1's views, at least
+
+
+def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
+    """The second round re-composites only the tiles the removals touched and takes the rest
+    from the first round's renders; on a 50x71 image the last tiles are partial."""
+    world = make_world("street", num_views=3, seed=1, height=50, width=71)
+    scene, _ = realistic_reconstruction(world, "all", seed=1)
+    ex = get_extractor("local")
+    one = FilterConfig(rounds=1)
+    first = filter_distractors(scene, config=one, extractor=ex)
+    kept = np.flatnonzero(first.keep)
+    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+    res = filter_distractors(scene, config=FilterConfig(rounds=2), extractor=ex)
+    assert res.stats["views_derived"] == scene.num_views
+    expect = first.keep.copy()
+    expect[kept[~second.keep]] = False
+    np.testing.assert_array_equal(res.keep, expect)
+    later = [c.record() for c in res.candidates if c.round == 2]
+    assert len(later) == len(second.candidates) > 0
+    for got, want in zip(later, (c.record() for c in second.candidates)):
+        assert got["scores"] == want["scores"]

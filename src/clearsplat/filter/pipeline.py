@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._memory import check_memory, estimate_filter_memory
+from .._memory import available_memory, check_memory, estimate_filter_memory
 from ..errors import ClearsplatError
 from ..features import get_extractor, upsample_nearest
 from ..render import prepare
@@ -221,18 +221,24 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
     result, carry = _filter_round(scene, config, extractor, report, hold=rounds > 1)
-    for round_ in range(2, rounds + 1):
-        kept = np.flatnonzero(result.keep)
-        if kept.size == n:          # nothing removed: a new round would find the same
-            break
-        later, carry = _filter_round(scene.subset(kept), config, extractor,
-                                     _in_round(report, round_), previous=carry,
-                                     hold=round_ < rounds)
-        _merge_round(result, later, kept, round_)
-        if later.keep.all():        # nothing new: a further round would find the same
-            break
-    if carry is not None:
-        carry.views.release()
+    previous = None
+    try:
+        for round_ in range(2, rounds + 1):
+            kept = np.flatnonzero(result.keep)
+            if kept.size == n:          # nothing removed: a new round would find the same
+                break
+            previous, carry = carry, None
+            later, carry = _filter_round(scene.subset(kept), config, extractor,
+                                         _in_round(report, round_), previous=previous,
+                                         hold=round_ < rounds)
+            previous = None             # spent (the round released it)
+            _merge_round(result, later, kept, round_)
+            if later.keep.all():        # nothing new: a further round would find the same
+                break
+    finally:    # what was handed on and not taken, also when a round raises
+        for c in (carry, previous):
+            if c is not None:
+                c.release()
     return result
 
 
@@ -247,6 +253,16 @@ class _Carry:
     full: list
     excl: list
     keep: np.ndarray
+
+    def nbytes(self) -> int:
+        """Bytes held: the views still kept and the renders not yet dropped."""
+        renders = sum(a.nbytes for r in self.full + self.excl if r is not None for a in r)
+        return self.views.held_bytes() + renders
+
+    def release(self) -> None:
+        self.views.release()
+        self.full.clear()
+        self.excl.clear()
 
 
 def _in_round(report: Progress, round_: int) -> Progress:
@@ -292,7 +308,14 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
     incremental = config.incremental and not on_gpu
     budget = None if config.view_memory is None else int(config.view_memory * 1e9)
     if not on_gpu:  # the GPU path holds only images and masks on the host
-        check_memory(estimate_filter_memory(n, scene.cameras, view_budget=budget))
+        available = None
+        if previous is not None:
+            # What the previous round hands on becomes this round's views as they are taken
+            # (and its renders are dropped view by view): count it as available.
+            free = available_memory()
+            available = None if free is None else free + previous.nbytes()
+        check_memory(estimate_filter_memory(n, scene.cameras, view_budget=budget),
+                     available=available)
     tau1 = extractor.tau1 if config.tau1 is None else config.tau1
     tau2 = extractor.tau2 if config.tau2 is None else config.tau2
     threads = config.num_threads
@@ -333,6 +356,7 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
             outside = ~_tile_pixels(pv, touched[i])
             for a, b in zip(r_excl, previous.excl[i]):
                 a[outside] = b[outside]
+            previous.full[i] = previous.excl[i] = None     # no longer needed
         else:
             r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
         full.append(r_full)
@@ -340,9 +364,7 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
         lap("exclusion_renders")
         report("render", i + 1, scene.num_views)
     if previous is not None:    # every view taken or prepared again: drop what is left
-        previous.views.release()
-        previous.full.clear()
-        previous.excl.clear()
+        previous.release()
     if not any_visible:
         msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
                "can be verified, the scene is returned unchanged")

@@ -158,8 +158,9 @@ def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
 
     The numbering of ``scipy.ndimage.label`` with a 3x3 structure, without importing SciPy.
     Works on runs (horizontal stretches of True): two runs of neighbouring rows touch when
-    their column ranges overlap or meet at a corner; a union-find over the touching pairs
-    joins them, so the Python work grows with the runs, not the pixels.
+    their column ranges overlap or meet at a corner. The components of that graph of runs come
+    from hooking each root to the smallest root it touches and pointer jumping, all in array
+    operations; each component ends up named by its first run.
     """
     mask = np.asarray(mask, dtype=bool)
     h, w = mask.shape
@@ -169,42 +170,38 @@ def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
     padded = np.zeros((h, w + 2), dtype=np.int8)
     padded[:, 1:-1] = mask
     edges = np.diff(padded, axis=1)           # +1 where a run starts, -1 past its end
-    row_s, start = np.nonzero(edges == 1)
+    row, start = np.nonzero(edges == 1)
     _, end = np.nonzero(edges == -1)          # exclusive; runs in row-major order
     runs = start.size
-    first = np.searchsorted(row_s, np.arange(h + 1))   # runs of row y: first[y]:first[y + 1]
-    parent = list(range(runs))
-
-    def root(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for y in range(h - 1):
-        a0, a1, b0, b1 = first[y], first[y + 1], first[y + 1], first[y + 2]
-        if a0 == a1 or b0 == b1:
-            continue
-        # Runs [s, e) and [s', e') of the next row touch when s' <= e and s <= e'.
-        bs, be = start[b0:b1], end[b0:b1]
-        lo = np.searchsorted(be, start[a0:a1], side="left")    # first with e' >= s
-        hi = np.searchsorted(bs, end[a0:a1], side="right")     # past the last with s' <= e
-        for k in np.flatnonzero(hi > lo):
-            ra = root(a0 + int(k))
-            for b in range(b0 + int(lo[k]), b0 + int(hi[k])):
-                rb = root(b)
-                if ra != rb:        # the earlier run becomes the root: it comes first
-                    ra, rb = min(ra, rb), max(ra, rb)
-                    parent[rb] = ra
-    roots = np.array([root(a) for a in range(runs)], dtype=np.int64)
-    is_root = roots == np.arange(runs)
+    # Touching pairs (a, b), b in the next row: s_b <= e_a and s_a <= e_b. Keys row * W + col
+    # (W > w) keep the rows apart, so one search over all runs finds b's range for every a.
+    wide = w + 2
+    lo = np.searchsorted(row * wide + end, (row + 1) * wide + start, side="left")
+    hi = np.searchsorted(row * wide + start, (row + 1) * wide + end, side="right")
+    count = np.maximum(hi - lo, 0)
+    a = np.repeat(np.arange(runs), count)
+    b = np.repeat(lo, count) + (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count,
+                                                                          count))
+    root = np.arange(runs)
+    while a.size:
+        ra, rb = root[a], root[b]
+        differ = ra != rb
+        if not differ.any():
+            break
+        a, b, ra, rb = a[differ], b[differ], ra[differ], rb[differ]
+        np.minimum.at(root, np.maximum(ra, rb), np.minimum(ra, rb))   # hook to a smaller root
+        while True:                                                   # then point to roots
+            up = root[root]
+            if np.array_equal(up, root):
+                break
+            root = up
+    is_root = root == np.arange(runs)
     number = np.cumsum(is_root).astype(np.int32)     # a root's component number, in run order
-    run_label = number[roots]
-    flat = labels.reshape(-1)
     lengths = end - start
-    offsets = np.repeat(row_s * w + start, lengths) + (
+    flat = labels.reshape(-1)
+    offsets = np.repeat(row * w + start, lengths) + (
         np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths))
-    flat[offsets] = np.repeat(run_label, lengths)
+    flat[offsets] = np.repeat(number[root], lengths)
     return labels, int(is_root.sum())
 
 

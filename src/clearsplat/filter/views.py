@@ -126,6 +126,10 @@ class PreparedViews:
             self._kept[i] = self._pruned(i, self._kept[i])
         self.pruned_bytes = self._bytes()
 
+    def held_bytes(self) -> int:
+        """Bytes the views kept now hold."""
+        return self._bytes()
+
     def take(self, i: int):
         """View ``i`` if it is held, no longer held here (None otherwise)."""
         return self._kept.pop(i, None)

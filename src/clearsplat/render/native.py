@@ -470,7 +470,11 @@ class PreparedView(_TiledView):
                             index=self._index.copy(), offsets=self._offsets.copy(),
                             lists=self._lists.copy(), num_threads=self._num_threads)
         view._floor = self._floor
-        return view.restrict(keep)
+        view.restrict(keep)
+        # Compact copies of the fronts the restriction left, so the new view holds no more.
+        view._splats, view._rects = view._splats.copy(), view._rects.copy()
+        view._index, view._lists = view._index.copy(), view._lists.copy()
+        return view
 
     def contributions(self, mask, *, keep=None) -> Contributions:
         """Every ``(pixel, gaussian, alpha * T)`` the compositing adds where ``mask`` is True.
