@@ -171,3 +171,34 @@ def test_subset_view_needs_a_whole_view(street):
         full.subset(keep[:-1])
     with pytest.raises(ClearsplatError, match="pruned"):
         full.pruned(keep).subset(keep)
+
+
+def test_a_gaussians_record_does_not_depend_on_its_place_in_a_block():
+    """Projection works in blocks of 64 Gaussians with eight-lane groups; a Gaussian in a short
+    last group must get the very same record (its alpha box included) as one in a full group,
+    or a subset view would differ from preparing the subset. 67 copies of one Gaussian (the
+    last three in a short group), with the principal point bisected to where the box's right
+    edge moves by a pixel: on both sides of that edge every copy has the same box."""
+    from clearsplat import Gaussians
+    n = 67
+    g = Gaussians(means=np.zeros((n, 3)), scales=np.full((n, 3), 0.05),
+                  quats=np.tile([1.0, 0, 0, 0], (n, 1)), opacities=np.full(n, 0.7),
+                  sh=np.zeros((n, 1, 3)))
+
+    def boxes(cx):
+        view = prepare(g, make_camera(64, 48, c=(cx, 24.0)), num_threads=1)
+        assert view.num_visible == n
+        return view._splats.view(np.int16).reshape(n, -1)[:, -4:]   # bx0, bx1, by0, by1
+
+    lo, hi = 32.0, 33.0
+    assert boxes(lo)[0, 1] != boxes(hi)[0, 1]
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if boxes(mid)[0, 1] == boxes(lo)[0, 1]:
+            lo = mid
+        else:
+            hi = mid
+    for cx in (lo, hi):
+        b = boxes(cx)
+        assert (b == b[0]).all(), cx
+    assert boxes(lo)[0, 1] + 1 == boxes(hi)[0, 1]

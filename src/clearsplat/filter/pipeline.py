@@ -24,7 +24,7 @@ from .config import FilterConfig
 from .proposal import ViewProposal, label8, propose_view
 from .robust import (misregistration, photometric_alignment, tolerant_images,
                      tolerant_reference)
-from .verify import Partial, Verifier
+from .verify import Partial, Verifier, tile_pixels
 from .views import PreparedViews
 
 __all__ = ["Candidate", "FilterResult", "filter_distractors"]
@@ -257,7 +257,7 @@ class _Carry:
     def nbytes(self) -> int:
         """Bytes held: the views still kept and the renders not yet dropped."""
         renders = sum(a.nbytes for r in self.full + self.excl if r is not None for a in r)
-        return self.views.held_bytes() + renders
+        return self.views.held_bytes + renders
 
     def release(self) -> None:
         self.views.release()
@@ -353,7 +353,9 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
         if i in touched:    # the previous round's renders, where its removals changed nothing
             r_full, r_excl = pv.render_pair(keep=~own[i], tiles=touched[i],
                                             start=previous.full[i])
-            outside = ~_tile_pixels(pv, touched[i])
+            flat, inside = tile_pixels(pv, touched[i])
+            outside = np.ones(r_excl.alpha.shape, dtype=bool)
+            outside.reshape(-1)[flat[inside]] = False
             for a, b in zip(r_excl, previous.excl[i]):
                 a[outside] = b[outside]
             previous.full[i] = previous.excl[i] = None     # no longer needed
@@ -499,16 +501,6 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
             views.release()
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, config, stats=stats), carry
-
-
-def _tile_pixels(view, tiles: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the pixels of ``tiles`` (tile ids) of a prepared view."""
-    rows, cols = view.grid
-    on = np.zeros(rows * cols, dtype=bool)
-    on[np.asarray(tiles, dtype=np.int64)] = True
-    size = view.tile_size
-    grid = np.repeat(np.repeat(on.reshape(rows, cols), size, axis=0), size, axis=1)
-    return grid[:view.camera.height, :view.camera.width]
 
 
 def _static_revealing(scene, index, views, excl, own, proposed, images, radii, config,

@@ -89,12 +89,14 @@ class PreparedViews:
         self._fit(i)
         return view
 
-    def _bytes(self) -> int:
+    @property
+    def held_bytes(self) -> int:
+        """Bytes the views kept now hold."""
         return sum(v.memory_bytes for v in self._kept.values())
 
     def _fit(self, current: int) -> None:
         """Drop the most recently prepared views other than ``current`` until within budget."""
-        held = self._bytes()
+        held = self.held_bytes
         self.peak_bytes = max(self.peak_bytes, held)
         if self.budget is None:
             return
@@ -124,11 +126,7 @@ class PreparedViews:
         self._floor = floor
         for i in list(self._kept):
             self._kept[i] = self._pruned(i, self._kept[i])
-        self.pruned_bytes = self._bytes()
-
-    def held_bytes(self) -> int:
-        """Bytes the views kept now hold."""
-        return self._bytes()
+        self.pruned_bytes = self.held_bytes
 
     def take(self, i: int):
         """View ``i`` if it is held, no longer held here (None otherwise)."""
