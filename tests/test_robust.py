@@ -137,11 +137,13 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
         assert not cfg.expand_connected and cfg.refine_tolerance_depth
         assert cfg.depth_scale_reach == 0 and cfg.rounds == 1
+        assert cfg.refine_color_grow is None
     for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
                        ("verify_tolerance", True), ("min_relative_score", 1.0),
                        ("min_relative_score", -0.1), ("refine_passes", 0),
                        ("refine_passes", 1.5), ("verify_mask", "none"), ("rounds", 0),
-                       ("rounds", 2.5)):
+                       ("rounds", 2.5), ("refine_color_grow", -0.1),
+                       ("refine_color_grow", "high")):
         with pytest.raises(ClearsplatError) as e:
             FilterConfig(**{field: bad})
         assert e.value.field == field
@@ -496,3 +498,76 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
     assert len(later) == len(second.candidates) > 0
     for got, want in zip(later, (c.record() for c in second.candidates)):
         assert got["scores"] == want["scores"]
+
+
+def _joined_by_flood_fill(seeds, weak, pixels, h, w):
+    """Slow reference for join_touching: breadth-first search over the pixel grid."""
+    seeds, weak = seeds & (pixels >= 0), weak & (pixels >= 0)
+    open_px = set(pixels[seeds].tolist()) | set(pixels[weak].tolist())
+    reached, frontier = set(pixels[seeds].tolist()), list(set(pixels[seeds].tolist()))
+    while frontier:
+        p = frontier.pop()
+        y, x = divmod(p, w)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                yy, xx = y + dy, x + dx
+                q = yy * w + xx
+                if 0 <= yy < h and 0 <= xx < w and q in open_px and q not in reached:
+                    reached.add(q)
+                    frontier.append(q)
+    return weak & np.isin(pixels, list(reached))
+
+
+def test_join_touching_matches_a_flood_fill():
+    from clearsplat.filter.association import join_touching
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        h, w = rng.integers(1, 40, size=2)
+        m = int(rng.integers(1, 3 * h * w))
+        pixels = rng.integers(-2, h * w, size=m)            # some pixels shared, some none
+        seeds = rng.uniform(size=m) < rng.uniform(0, 0.1)
+        weak = ~seeds & (rng.uniform(size=m) < rng.uniform(0.1, 0.7))
+        got = join_touching(seeds, weak, pixels, int(h), int(w))
+        np.testing.assert_array_equal(got, _joined_by_flood_fill(seeds, weak, pixels, h, w),
+                                      err_msg=f"trial {trial}")
+        assert not (got & ~weak).any()
+
+
+def test_colour_hysteresis_joins_the_foot_of_an_object_and_nothing_apart():
+    """One view of a flat wall at depth 4. An object stands in front of it: its top rows are
+    well in front (they qualify by depth), its bottom rows touch the wall and differ from the
+    wall's colour by 0.36, between the two thresholds. A patch of the same colour apart from
+    the object touches the wall too: it has nothing to join."""
+    h, w = 16, 16
+    world = make_world("object", num_views=2, seed=0, height=h, width=w)
+    scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
+    cam = scene.cameras[0]
+    index = ViewIndex(scene)
+    members = index.members[0]
+    rows, cols = np.divmod(index.pixels[0], w)
+    depth = np.full(members.size, 4.0)
+    top, foot = (rows >= 2) & (rows < 5) & (cols >= 3) & (cols < 8), \
+        (rows >= 5) & (rows < 8) & (cols >= 3) & (cols < 8)
+    apart = (rows >= 3) & (rows < 8) & (cols >= 12) & (cols < 15)
+    depth[top] = 3.0
+    grid = np.zeros((h, w))
+    grid.reshape(-1)[index.pixels[0]] = depth
+    means = scene.gaussians.means.copy()
+    means[members] = cam.unproject(grid).reshape(-1, 3)[index.pixels[0]]
+    scene.gaussians.means = means
+    wall = np.full((h, w, 3), 0.5)
+    image = wall.reshape(-1, 3).copy()
+    image[top | foot] = [0.62, 0.62, 0.62]
+    image[apart] = [0.62, 0.62, 0.62]
+    images = [image.reshape(h, w, 3), np.asarray(scene.images[1])]
+    ref_depth = [np.full((h, w), 4.0), np.zeros((h, w))]
+    ref_rgb = [wall, np.full((h, w, 3), np.nan)]
+    kw = dict(margin=0.02, reference_rgbs=ref_rgb, color_threshold=0.5, images=images)
+    off = revealing_gaussians(scene, index, ref_depth, **kw)[members]
+    on = revealing_gaussians(scene, index, ref_depth, color_grow=0.3, **kw)[members]
+    np.testing.assert_array_equal(off, top)
+    np.testing.assert_array_equal(on, top | foot)
+    # A lower threshold above the difference, or one at or above refine_color: no growth.
+    for grow in (0.4, 0.5, 0.7):
+        np.testing.assert_array_equal(
+            revealing_gaussians(scene, index, ref_depth, color_grow=grow, **kw)[members], top)

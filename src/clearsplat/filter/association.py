@@ -116,7 +116,7 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         color_threshold: float | None = None, images: list | None = None,
                         align_scale: bool = False,
                         reference_rgbs_hi: list[np.ndarray] | None = None,
-                        scale_reach: int = 0) -> np.ndarray:
+                        scale_reach: int = 0, color_grow: float | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -152,6 +152,11 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         With ``align_scale``: 0 divides each view's depths by one scale; k > 0 by the median
         ratio within k 16-pixel cells around each Gaussian
         (:func:`clearsplat.filter.robust.local_depth_scales`, ``FilterConfig.depth_scale_reach``).
+    color_grow : float, optional
+        With ``color_threshold``: a lower threshold for the same colour test, applied with
+        hysteresis. A Gaussian that touches the reference and differs from it by more than this
+        also qualifies when its pixel is 8-connected through such pixels to the pixel of one
+        that qualifies on its own (:func:`join_touching`, ``FilterConfig.refine_color_grow``).
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -189,9 +194,52 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                     hi = reference_rgbs_hi[view].reshape(-1, 3)[pix[valid]]
                     diff = (np.maximum(ref[pix[valid]] - x, 0) + np.maximum(x - hi, 0)).sum(-1)
             differ[valid] = diff > color_threshold       # False where the reference is NaN
-            front |= differ & (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
+            touching = (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
+            front |= differ & touching
+            if color_grow is not None and color_grow < color_threshold:
+                weak = np.zeros(members.size, dtype=bool)
+                weak[valid] = diff > color_grow
+                cam = scene.cameras[view]
+                front |= join_touching(front, weak & touching & ~front, pix,
+                                       cam.height, cam.width)
         out[members] = front
     return out
+
+
+def join_touching(seeds: np.ndarray, weak: np.ndarray, pixels: np.ndarray, height: int,
+                  width: int) -> np.ndarray:
+    """The ``weak`` Gaussians joined to ``seeds`` through their pixels (hysteresis), (M,) bool.
+
+    Parameters
+    ----------
+    seeds, weak : (M,) bool
+        Over one view's Gaussians: those that qualify on their own, and those that qualify only
+        when joined to them.
+    pixels : (M,) int
+        Each Gaussian's pixel (row-major index into the (height, width) image; negative: none).
+    height, width : int
+
+    Returns
+    -------
+    (M,) bool
+        The weak Gaussians whose pixel lies in an 8-connected component of the pixels of
+        seed and weak Gaussians that holds a seed pixel.
+    """
+    from .proposal import label8
+    joined = np.zeros(weak.shape, dtype=bool)
+    seeds = seeds & (pixels >= 0)
+    weak = weak & (pixels >= 0)
+    if not (seeds.any() and weak.any()):
+        return joined
+    seed_px = np.zeros(height * width, dtype=bool)
+    seed_px[pixels[seeds]] = True
+    either = seed_px.copy()
+    either[pixels[weak]] = True
+    labels = label8(either.reshape(height, width))[0].ravel()
+    reached = np.zeros(int(labels.max()) + 1, dtype=bool)
+    reached[labels[seed_px]] = True
+    joined[weak] = reached[labels[pixels[weak]]]
+    return joined
 
 
 def pixels_of(scene: Scene, index: ViewIndex, view: int, selected: np.ndarray) -> np.ndarray:

@@ -173,6 +173,13 @@ class FilterConfig:
         With ``refine="static-depth"``: also keep Gaussians whose input colour differs from the
         static reference's colour by more than this (L1 over RGB) and that do not lie behind it
         (the parts of an object that touch the surface behind it). None: depth only.
+    refine_color_grow : float or None
+        With ``refine_color``: hysteresis for that colour test. A Gaussian that touches the
+        static reference (as above) and differs from its colour by more than this lower
+        threshold also qualifies when its pixel is 8-connected, through such pixels, to a pixel
+        of a Gaussian of its view that qualifies on its own (in front, or beyond
+        ``refine_color``): the foot of an object standing on the floor, joined to the rest of
+        the object. None: off.
     verify_mask : {"auto", "proposals+revealing", "proposals", "revealing"}
         Pixels each verifying view leaves out. ``"proposals"``: its proposal regions (the paper).
         ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
@@ -299,6 +306,7 @@ class FilterConfig:
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
     refine_color: float | None = 0.5
+    refine_color_grow: float | None = None
     verify_mask: Literal["auto", "proposals+revealing", "proposals", "revealing"] = "auto"
     verify_holes: Literal["auto", "skip", "count"] = "auto"
     min_score: float = 0.0
@@ -396,6 +404,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine": FieldSpec("choice", choices=("static-depth", "depth", "none")),
     "refine_margin": FieldSpec("number", 0.0),
     "refine_color": FieldSpec("number", 0.0, 3.0, optional=True),
+    "refine_color_grow": FieldSpec("number", 0.0, 3.0, optional=True),
     "verify_mask": FieldSpec("choice", choices=("auto", "proposals+revealing", "proposals",
                                                  "revealing")),
     "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
@@ -429,7 +438,7 @@ PRESETS = {
                           verify_tolerance=0, refine_tolerance=0,
                           min_relative_score=0.0, refine_passes=1,
                           expand_connected=False, refine_tolerance_depth=True,
-                          depth_scale_reach=0, rounds=1),
+                          depth_scale_reach=0, rounds=1, refine_color_grow=None),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -437,7 +446,7 @@ PRESETS = {
                                 verify_tolerance=0, refine_tolerance=0,
                                 min_relative_score=0.0, refine_passes=1,
                                 expand_connected=False, refine_tolerance_depth=True,
-                                depth_scale_reach=0, rounds=1),
+                                depth_scale_reach=0, rounds=1, refine_color_grow=None),
 }
 
 

@@ -534,7 +534,8 @@ def _static_revealing(scene, index, views, excl, own, proposed, images, radii, c
                                color_threshold=config.refine_color, images=images,
                                align_scale=config.depth_scale_align,
                                reference_rgbs_hi=reference_hi,
-                               scale_reach=config.depth_scale_reach)
+                               scale_reach=config.depth_scale_reach,
+                               color_grow=config.refine_color_grow)
 
 
 def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,
