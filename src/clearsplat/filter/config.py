@@ -179,7 +179,7 @@ class FilterConfig:
         threshold also qualifies when its pixel is 8-connected, through such pixels, to a pixel
         of a Gaussian of its view that qualifies on its own (in front, or beyond
         ``refine_color``): the foot of an object standing on the floor, joined to the rest of
-        the object. None: off.
+        the object. None: off (as is a value at or above ``refine_color``).
     verify_mask : {"auto", "proposals+revealing", "proposals", "revealing"}
         Pixels each verifying view leaves out. ``"proposals"``: its proposal regions (the paper).
         ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
