@@ -5,7 +5,7 @@ import pytest
 from scipy import ndimage
 
 from clearsplat.filter.association import dilate
-from clearsplat.filter.proposal import connected_regions, label8
+from clearsplat.filter.proposal import connected_regions, label8, touched_components
 
 
 @pytest.mark.parametrize("seed", range(40))
@@ -67,3 +67,17 @@ def test_label8_long_chains_match_scipy():
         assert n_got == n_want
         assert np.array_equal(got, want)
     assert label8(snake)[1] == 1 and label8(comb)[1] == 1
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_touched_components_is_the_union_of_the_components_touched(seed):
+    rng = np.random.default_rng(seed)
+    mask = rng.uniform(size=(30, 41)) < 0.45
+    labels, count = label8(mask)
+    where = rng.uniform(size=mask.shape) < 0.01
+    expected = np.zeros(mask.shape, bool)
+    for k in range(1, count + 1):
+        if (where & (labels == k)).any():
+            expected |= labels == k
+    np.testing.assert_array_equal(touched_components(labels, where), expected)
+    assert not touched_components(labels, np.zeros_like(where)).any()

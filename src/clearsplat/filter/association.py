@@ -225,7 +225,7 @@ def join_touching(seeds: np.ndarray, weak: np.ndarray, pixels: np.ndarray, heigh
         The weak Gaussians whose pixel lies in an 8-connected component of the pixels of
         seed and weak Gaussians that holds a seed pixel.
     """
-    from .proposal import label8
+    from .proposal import label8, touched_components
     joined = np.zeros(weak.shape, dtype=bool)
     seeds = seeds & (pixels >= 0)
     weak = weak & (pixels >= 0)
@@ -236,9 +236,7 @@ def join_touching(seeds: np.ndarray, weak: np.ndarray, pixels: np.ndarray, heigh
     either = seed_px.copy()
     either[pixels[weak]] = True
     labels = label8(either.reshape(height, width))[0].ravel()
-    reached = np.zeros(int(labels.max()) + 1, dtype=bool)
-    reached[labels[seed_px]] = True
-    joined[weak] = reached[labels[pixels[weak]]]
+    joined[weak] = touched_components(labels, seed_px)[pixels[weak]]
     return joined
 
 

@@ -21,7 +21,7 @@ from ..scene import Scene
 from .association import (ViewIndex, dilate, pixels_of, region_gaussians, revealing_gaussians,
                           verification_views)
 from .config import FilterConfig
-from .proposal import ViewProposal, label8, propose_view
+from .proposal import ViewProposal, label8, propose_view, touched_components
 from .robust import (misregistration, photometric_alignment, tolerant_images,
                      tolerant_reference)
 from .verify import Partial, Verifier, tile_pixels
@@ -548,10 +548,7 @@ def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,
         h, w = grow.shape
         grow &= upsample_nearest(proposal.similarity < tau2, h, w)
         labels[view] = label8(grow)[0]
-    lab = labels[view]
-    touched = np.unique(lab[pixels])
-    touched = touched[touched > 0]
-    return pixels | np.isin(lab, touched) if touched.size else pixels
+    return pixels | touched_components(labels[view], pixels)
 
 
 def _removable(proposals, region_to_gaussians, n: int, dilation: float,

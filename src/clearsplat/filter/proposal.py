@@ -205,6 +205,15 @@ def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
     return labels, int(is_root.sum())
 
 
+def touched_components(labels: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Bool mask of the shape of ``labels``: the components (labels > 0, as :func:`label8`
+    numbers them) that hold a pixel of ``where`` (a bool mask of the same shape)."""
+    reached = np.zeros(int(labels.max(initial=0)) + 1, dtype=bool)
+    reached[labels[where]] = True
+    reached[0] = False
+    return reached[labels]
+
+
 def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
                  depth_full: np.ndarray, depth_excluded: np.ndarray, *, eta: float,
                  tau1: float, tau2: float, second_range: bool = True,
