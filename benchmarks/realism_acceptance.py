@@ -69,7 +69,7 @@ def acceptance(cells: dict, real: dict, config: str, baseline: str | None = None
     worst("other removed <= 1 % per scenario and view count",
           [(k, _mean([100 * r["other_removed"] for r in rs])) for k, rs in per],
           lambda x: x > 1.0, lambda x: f"highest {x:.2f} %")
-    every = [(f"{r['realism'] or 'plain'} {r['family']} {r['views']} views", r)
+    every = [(f"{r.get('realism') or 'plain'} {r['family']} {r['views']} views", r)
              for rs in mine.values() for r in rs]
     worst("other removed <= 2 % in every cell",
           [(k, 100 * r["other_removed"]) for k, r in every],
@@ -137,10 +137,10 @@ def main() -> None:
     for scen in order:
         for key in sorted((k for k in cells if k[0] == scen), key=lambda k: (k[1], k[2])):
             rs = cells[key]
-            gains = [r["filtered"]["psnr"] - r["baseline"]["psnr"] for r in rs]
-            exact = [r["exact"]["psnr"] - r["baseline"]["psnr"] for r in rs]
+            gains = [_gain(r) for r in rs]
+            exact = [_exact(r) for r in rs]
             other = [100 * r["other_removed"] for r in rs]
-            clean = [r["clean_filtered"]["psnr"] - r["clean_baseline"]["psnr"] for r in rs]
+            clean = [_clean(r) for r in rs]
             crm = [100 * r["clean_removed"] for r in rs]
             recall = sum(r["recall"] for r in rs) / len(rs)
             per_scenario[(scen, key[1])].extend(gains)
@@ -160,10 +160,10 @@ def main() -> None:
           "      clean dPSNR        clean removed")
     for (cfg, views) in sorted(overall):
         rs = overall[(cfg, views)]
-        gains = [r["filtered"]["psnr"] - r["baseline"]["psnr"] for r in rs]
-        exact = [r["exact"]["psnr"] - r["baseline"]["psnr"] for r in rs]
+        gains = [_gain(r) for r in rs]
+        exact = [_exact(r) for r in rs]
         other = [100 * r["other_removed"] for r in rs]
-        clean = [r["clean_filtered"]["psnr"] - r["clean_baseline"]["psnr"] for r in rs]
+        clean = [_clean(r) for r in rs]
         crm = [100 * r["clean_removed"] for r in rs]
         print(f"{cfg:15s} {views:5d}  {len(rs):5d}  {sum(gains) / len(gains):+5.2f} "
               f"({100 * sum(gains) / sum(exact):3.0f} %)       "
