@@ -40,8 +40,9 @@ _COLOR_MIN_ALPHA = 0.9
 #: this many views on (measured: needed at 8 and 16 views, harmful on clean 4-view scenes).
 _REVEALING_MASK_MIN_VIEWS = 8
 #: ``rounds="auto"`` runs a second round from this many views on (measured on the realism
-#: scenarios, for about twice the time: +0.58 dB at 16 views, +0.15 dB at 8, +0.02 dB at 4).
-_SECOND_ROUND_MIN_VIEWS = 16
+#: scenarios: +0.58 dB at 16 views, +0.18 dB at 8 for 1.6 times the time, +0.02 dB at 4; with
+#: ``min_relative_score`` it also keeps the 8-view recall, docs/method.md, departure 12).
+_SECOND_ROUND_MIN_VIEWS = 8
 
 
 @dataclass(eq=False)
