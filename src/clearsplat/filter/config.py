@@ -282,11 +282,10 @@ class FilterConfig:
         surface is revealed, or the static reference is nearer), and one at nearly the same
         place (someone walking) lends it support. Stops early when a round removes nothing.
         ``"auto"``: two rounds from eight views on, one below (measured: the second round
-        takes about half as long as the first; it gains 0.58 dB at 16 views, 0.18 dB at 8 and
-        0.02 dB at 4, and at 8 views it finds most of the passers-by that
-        ``min_relative_score`` rejects in the first round, once the other views' passers-by
-        that their removal uncovered are gone).
-        1: the paper (a single run).
+        takes about half as long as the first at 16 views and two thirds at 8; it gains
+        0.58 dB at 16 views, 0.18 dB at 8 and 0.02 dB at 4, and at 8 views it finds most of
+        the passers-by that ``min_relative_score`` rejects in the first round, once the other
+        views' passers-by that their removal uncovered are gone). 1: the paper (a single run).
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
