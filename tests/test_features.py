@@ -301,6 +301,33 @@ def test_local_descriptor_matches_loop_reference():
     np.testing.assert_allclose(got, _local_reference(img), atol=1e-4)
 
 
+def test_similarity_in_threads_equals_one_pair_at_a_time(monkeypatch):
+    rng = np.random.default_rng(7)
+    a = rng.random((5, 40, 56, 3), dtype=np.float32)
+    b = np.clip(a + rng.normal(0, 0.1, a.shape).astype(np.float32), 0, 1)
+    ex = LocalDescriptor()
+    assert ex.pairs_in_threads
+    monkeypatch.setattr("clearsplat._threads.cores", lambda: 3)
+    threaded = ex.similarity(a, b)
+    monkeypatch.setattr(ex, "pairs_in_threads", False)
+    alone = np.stack([ex.similarity(a[k:k + 1], b[k:k + 1])[0] for k in range(len(a))])
+    np.testing.assert_array_equal(threaded, alone)
+
+
+def test_thread_map_keeps_order_and_raises():
+    from clearsplat._threads import thread_map
+    assert thread_map(lambda x: x * x, range(7), workers=3) == [x * x for x in range(7)]
+    assert thread_map(str, [], workers=4) == []
+
+    def fail(x):
+        if x == 2:
+            raise ValueError("two")
+        return x
+
+    with pytest.raises(ValueError, match="two"):
+        thread_map(fail, range(5), workers=2)
+
+
 def test_rgb_difference_closed_form():
     a = np.full((1, 32, 32, 3), 0.2, dtype=np.float32)
     b = np.full((1, 32, 32, 3), 0.5, dtype=np.float32)

@@ -230,7 +230,7 @@ nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists
 
 // out[i] = mask[index[i]]: a (N,) mask over the visible Gaussians of a view, without widening
 // the int32 indices first (the gather is bound by memory: one thread).
-nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index) {
+nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index, int num_threads) {
     const int64_t n = int64_t(mask.size()), v = int64_t(index.size());
     uint8_t* out = static_cast<uint8_t*>(std::malloc(size_t(std::max<int64_t>(v, 1))));
     if (!out) throw std::bad_alloc();
@@ -239,6 +239,9 @@ nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index) {
     int64_t bad = 0;
     {
         nb::gil_scoped_release release;
+        // A gather of scattered bytes: worth threads only for large views.
+        const int threads = v < (int64_t(1) << 16) ? 1 : std::max(1, num_threads);
+#pragma omp parallel for schedule(static) reduction(+ : bad) num_threads(threads)
         for (int64_t i = 0; i < v; ++i) {
             const int32_t k = idx[i];
             const bool ok = k >= 0 && int64_t(k) < n;
@@ -314,7 +317,7 @@ NB_MODULE(_core, m) {
           "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
           "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place); "
           "with a base render (empty arrays: none) only the pixels the removal can change.");
-    m.def("take_mask", &take_mask, "mask"_a, "index"_a,
+    m.def("take_mask", &take_mask, "mask"_a, "index"_a, "num_threads"_a = 1,
           "mask[index] as uint8 (a keep mask over a view's visible Gaussians).");
     m.def("centres_inside", &centres_inside, "splats"_a, "index"_a, "n"_a, "width"_a, "height"_a,
           "(n,) uint8: the Gaussians whose projected centre lies inside the image.");

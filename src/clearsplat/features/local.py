@@ -112,6 +112,7 @@ class LocalDescriptor(FeatureExtractor):
     name = "local"
     tau1 = 0.51
     tau2 = 0.69
+    pairs_in_threads = True
 
     def __init__(self, *, patch_size: int = 16, colour_sigma: float = 0.15,
                  context: bool = True, tau1: float | None = None, tau2: float | None = None):

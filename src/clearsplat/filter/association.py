@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from .._threads import thread_map
 from ..render import PreparedView, contributions
 from ..scene import Scene
 
@@ -160,11 +161,15 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
-    out = np.zeros(len(scene), dtype=bool)
-    for view, members in enumerate(index.members):
+    # Camera depths first, in this thread (a matrix product, left to BLAS as it is).
+    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
+              if members.size else None for view, members in enumerate(index.members)]
+
+    def view_front(view: int) -> np.ndarray | None:
+        members = index.members[view]
         if members.size == 0:
-            continue
-        z = scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
+            return None
+        z = depths[view]
         pix = member_pixels(scene, index, view)
         behind = np.zeros(members.size)
         valid = pix >= 0
@@ -202,7 +207,13 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                 cam = scene.cameras[view]
                 front |= join_touching(front, weak & touching & ~front, pix,
                                        cam.height, cam.width)
-        out[members] = front
+        return front
+
+    out = np.zeros(len(scene), dtype=bool)
+    # The views are independent (each writes its own Gaussians): one per core.
+    for members, front in zip(index.members, thread_map(view_front, range(scene.num_views))):
+        if front is not None:
+            out[members] = front
     return out
 
 

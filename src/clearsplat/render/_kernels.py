@@ -186,10 +186,10 @@ def restrict_view(splats, rects, index, offsets, lists, keep) -> tuple[int, int]
     return int(num), int(pairs)
 
 
-def take_mask(mask: np.ndarray, index: np.ndarray) -> np.ndarray:
+def take_mask(mask: np.ndarray, index: np.ndarray, num_threads: int = 1) -> np.ndarray:
     """``mask[index]`` for an (N,) bool mask and int32 indices, as (V,) bool (``np.take`` widens
     the indices to int64 first)."""
-    return _core.take_mask(_mask(mask), _c(index, np.int32)).view(np.bool_)
+    return _core.take_mask(_mask(mask), _c(index, np.int32), num_threads).view(np.bool_)
 
 
 def centres_inside(splats, index, n: int, width: int, height: int) -> np.ndarray:

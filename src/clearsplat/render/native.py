@@ -109,7 +109,7 @@ class PreparedView(_TiledView):
     def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
         """(V,) bool keep over the visible Gaussians, or None."""
         keep = _check_keep(keep, self.num_gaussians, field)
-        keep_v = None if keep is None else _kernels.take_mask(keep, self._index)
+        keep_v = None if keep is None else _kernels.take_mask(keep, self._index, self._num_threads)
         if keep_v is not None and self._floor is not None and (self._floor & ~keep_v).any():
             raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
                                   "its floor, and this one leaves some out", field=field)
@@ -129,7 +129,8 @@ class PreparedView(_TiledView):
             if a.shape != (self.num_gaussians,):
                 raise ClearsplatError(f"expected a ({self.num_gaussians},) bool mask, got shape "
                                       f"{a.shape}", field=field)
-            return np.flatnonzero(_kernels.take_mask(a, self._index)).astype(np.int32)
+            seen = _kernels.take_mask(a, self._index, self._num_threads)
+            return np.flatnonzero(seen).astype(np.int32)
         idx = _check_indices(a, self.num_gaussians, field)
         if self._visible_id is None:
             vid = np.full(self.num_gaussians, -1, dtype=np.int32)
@@ -393,7 +394,7 @@ class PreparedView(_TiledView):
             Gaussian of the floor, or a removal of one, raises :class:`ClearsplatError`.
         """
         floor = _check_keep(floor, self.num_gaussians, "floor")
-        floor_v = _kernels.take_mask(floor, self._index)
+        floor_v = _kernels.take_mask(floor, self._index, self._num_threads)
         if self._floor is not None:
             floor_v |= self._floor
         h, w = self.camera.height, self.camera.width
