@@ -134,6 +134,29 @@ def test_output_does_not_depend_on_thread_count(scene, extractor):
     assert np.array_equal(a.keep, b.keep)
 
 
+def test_one_thread_means_one_thread_for_numpy_steps_too(scene, extractor, monkeypatch):
+    import clearsplat._threads as threads
+    seen = []
+    real = threads.thread_map
+
+    def spy(fn, items, *, workers=None):
+        seen.append(workers)
+        return real(fn, items, workers=workers)
+
+    for module in ("clearsplat.features.base", "clearsplat.filter.association"):
+        monkeypatch.setattr(f"{module}.thread_map", spy)
+    filter_distractors(scene, config=FilterConfig(num_threads=1), extractor=extractor)
+    assert seen and set(seen) == {1}
+
+
+def test_default_threads_follow_omp_num_threads(monkeypatch):
+    from clearsplat._threads import cores
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert cores() == 1
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    assert cores() >= 1
+
+
 def test_verification_views_are_those_seeing_most_centres():
     K = [[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]
     cams = [Camera(K=K, camera_to_world=look_at(e, t, up=(0.0, -1.0, 0.0)), width=64, height=48)

@@ -15,11 +15,17 @@ __all__ = ["cores", "thread_map"]
 
 
 def cores() -> int:
-    """CPU cores this process may run on."""
+    """Threads to use by default: the CPU cores this process may run on, at most
+    ``OMP_NUM_THREADS`` where that is set (as the native rasterizer counts them; Ray sets it
+    for its tasks)."""
     try:
-        return len(os.sched_getaffinity(0))
+        n = len(os.sched_getaffinity(0))
     except AttributeError:      # not on Linux
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    omp = os.environ.get("OMP_NUM_THREADS", "").split(",")[0].strip()
+    if omp.isdigit() and int(omp) > 0:
+        n = min(n, int(omp))
+    return max(1, n)
 
 
 def thread_map(fn: Callable, items: Iterable, *, workers: int | None = None) -> list:

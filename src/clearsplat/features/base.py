@@ -334,12 +334,15 @@ class FeatureExtractor:
         """
         raise NotImplementedError
 
-    def similarity(self, a_images, b_images) -> np.ndarray:
+    def similarity(self, a_images, b_images, *, workers: int | None = None) -> np.ndarray:
         """Per-cell similarity of two image batches of the same shape.
 
         Parameters
         ----------
         a_images, b_images : (B, H, W, 3) float32 in [0, 1]
+        workers : int, optional
+            Threads for the image pairs where :attr:`pairs_in_threads` allows them (default:
+            the cores, at most ``OMP_NUM_THREADS``); the result does not depend on it.
 
         Returns
         -------
@@ -354,7 +357,7 @@ class FeatureExtractor:
         # One pair at a time (per thread): the descriptors' temporaries stay small enough to be
         # reused instead of faulting in fresh pages (3-5x faster next to a large scene in
         # memory).
-        out = thread_map(pair, range(len(a)), workers=None if self.pairs_in_threads else 1)
+        out = thread_map(pair, range(len(a)), workers=workers if self.pairs_in_threads else 1)
         return np.concatenate(out, axis=0)
 
     @staticmethod

@@ -66,12 +66,14 @@ class RGBDifference(FeatureExtractor):
         x = x.reshape(B, h, p, w, p, 3).transpose(0, 1, 3, 2, 4, 5)
         return np.ascontiguousarray(x.reshape(B, h, w, p * p * 3))
 
-    def similarity(self, a_images, b_images) -> np.ndarray:
+    def similarity(self, a_images, b_images, *, workers: int | None = None) -> np.ndarray:
         """``1 - 2 * mean |a - b|`` per cell.
 
         Parameters
         ----------
         a_images, b_images : (B, H, W, 3) float32 in [0, 1]
+        workers : int, optional
+            Ignored: one vectorised pass over the whole batch.
 
         Returns
         -------

@@ -117,7 +117,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         color_threshold: float | None = None, images: list | None = None,
                         align_scale: bool = False,
                         reference_rgbs_hi: list[np.ndarray] | None = None,
-                        scale_reach: int = 0, color_grow: float | None = None) -> np.ndarray:
+                        scale_reach: int = 0, color_grow: float | None = None,
+                        workers: int | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -158,6 +159,9 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         hysteresis. A Gaussian that touches the reference and differs from it by more than this
         also qualifies when its pixel is 8-connected through such pixels to the pixel of one
         that qualifies on its own (:func:`join_touching`, ``FilterConfig.refine_color_grow``).
+    workers : int, optional
+        Threads, one view at a time each (default: the cores, at most ``OMP_NUM_THREADS``); the
+        result does not depend on it.
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -211,7 +215,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
 
     out = np.zeros(len(scene), dtype=bool)
     # The views are independent (each writes its own Gaussians): one per core.
-    for members, front in zip(index.members, thread_map(view_front, range(scene.num_views))):
+    fronts = thread_map(view_front, range(scene.num_views), workers=workers)
+    for members, front in zip(index.members, fronts):
         if front is not None:
             out[members] = front
     return out

@@ -208,7 +208,8 @@ class FilterConfig:
         Verify by re-compositing only the tiles a candidate touches (exact); False re-renders whole
         images (slow reference path).
     num_threads : int or None
-        Threads of the native rasterizer (None: all cores).
+        Threads of the native rasterizer and of the per-view NumPy steps (feature pairs, the
+        depth test) (None: all cores, at most ``OMP_NUM_THREADS``). Never changes the output.
     view_memory : float or None
         GB the prepared input views may hold at once on the CPU (about 60 bytes per Gaussian
         each camera sees); views beyond it are prepared again when read, which costs time but

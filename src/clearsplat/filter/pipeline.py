@@ -376,7 +376,10 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
             views.release()
         return FilterResult(np.ones(n, bool), [], [], timings, config, [msg]), None
     images = _aligned_images(scene, excl, config)
-    sims = extractor.similarity(np.stack(images), np.stack([r.rgb for r in excl]))
+    pair = (np.stack(images), np.stack([r.rgb for r in excl]))
+    # Threads as the rasterizer's (config.num_threads), for extractors that use them.
+    sims = (extractor.similarity(*pair, workers=threads)
+            if getattr(extractor, "pairs_in_threads", False) else extractor.similarity(*pair))
     lap("features")
     proposals: list[ViewProposal] = []
     for i in range(scene.num_views):
@@ -410,7 +413,7 @@ def _filter_round(scene: Scene, config: FilterConfig, extractor, report, *,
         revealing = revealing_gaussians(scene, index, [r.depth for r in excl],
                                         margin=config.refine_margin,
                                         align_scale=config.depth_scale_align,
-                                        scale_reach=config.depth_scale_reach)
+                                        scale_reach=config.depth_scale_reach, workers=threads)
     elif config.refine == "static-depth":
         proposed = np.zeros(n, dtype=bool)
         for g in raw:
@@ -536,7 +539,8 @@ def _static_revealing(scene, index, views, excl, own, proposed, images, radii, c
                                align_scale=config.depth_scale_align,
                                reference_rgbs_hi=reference_hi,
                                scale_reach=config.depth_scale_reach,
-                               color_grow=config.refine_color_grow)
+                               color_grow=config.refine_color_grow,
+                               workers=config.num_threads)
 
 
 def _grow_connected(pixels: np.ndarray, view: int, labels: dict, scene, index,
