@@ -229,7 +229,7 @@ nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists
 }
 
 // out[i] = mask[index[i]]: a (N,) mask over the visible Gaussians of a view, without widening
-// the int32 indices first (the gather is bound by memory: one thread).
+// the int32 indices first.
 nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index, int num_threads) {
     const int64_t n = int64_t(mask.size()), v = int64_t(index.size());
     uint8_t* out = static_cast<uint8_t*>(std::malloc(size_t(std::max<int64_t>(v, 1))));

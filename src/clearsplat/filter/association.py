@@ -165,16 +165,18 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
-    # Camera depths first, in this thread (a matrix product, left to BLAS as it is).
+    # Camera depths and pixels first, in this thread (matrix products, left to BLAS as they
+    # are, whose own threads must not depend on ours).
     depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
               if members.size else None for view, members in enumerate(index.members)]
+    pixels = [member_pixels(scene, index, view) if members.size else None
+              for view, members in enumerate(index.members)]
 
     def view_front(view: int) -> np.ndarray | None:
         members = index.members[view]
         if members.size == 0:
             return None
-        z = depths[view]
-        pix = member_pixels(scene, index, view)
+        z, pix = depths[view], pixels[view]
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
