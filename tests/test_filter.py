@@ -150,11 +150,18 @@ def test_one_thread_means_one_thread_for_numpy_steps_too(scene, extractor, monke
 
 
 def test_default_threads_follow_omp_num_threads(monkeypatch):
+    import os
+
     from clearsplat._threads import cores
+    available = len(os.sched_getaffinity(0))
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     assert cores() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "1,4")      # nested levels: the outer one counts
+    assert cores() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", str(available + 5))   # never above the cores
+    assert cores() == available
     monkeypatch.delenv("OMP_NUM_THREADS")
-    assert cores() >= 1
+    assert cores() == available
 
 
 def test_verification_views_are_those_seeing_most_centres():
