@@ -16,8 +16,9 @@ __all__ = ["cores", "thread_map"]
 
 def cores() -> int:
     """Threads to use by default: the CPU cores this process may run on, at most
-    ``OMP_NUM_THREADS`` where that is set (as the native rasterizer counts them; Ray sets it
-    for its tasks)."""
+    ``OMP_NUM_THREADS`` where that is set (Ray sets it for its tasks). The native rasterizer
+    takes OpenMP's count, which is the same unless ``OMP_NUM_THREADS`` asks for more threads
+    than there are cores: these steps never oversubscribe."""
     try:
         n = len(os.sched_getaffinity(0))
     except AttributeError:      # not on Linux
