@@ -57,8 +57,8 @@ def same_output(a: Path, b: Path) -> None:
     but for the image paths, which lead from each folder to the same input images."""
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
-    assert names == [".clearsplat.json", "cameras.json", "gaussians.ply", "removed.npy",
-                     "summary.json"]
+    assert names == [".clearsplat.json", "cameras.json", "candidates.npz", "gaussians.ply",
+                     "removed.npy", "removed.ply", "summary.json"]
     for n in (".clearsplat.json", "gaussians.ply", "removed.npy"):
         assert (a / n).read_bytes() == (b / n).read_bytes(), n
     # cameras.json refers to the input images relative to where each output lies: the same

@@ -157,7 +157,8 @@ def test_filter_writes_only_out(bundle, tmp_path, capsys):
     assert "clearsplat: error" not in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(listing + ["out"])
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        ".clearsplat.json", "cameras.json", "gaussians.ply", "removed.npy", "summary.json"]
+        ".clearsplat.json", "cameras.json", "candidates.npz", "gaussians.ply", "removed.npy",
+        "removed.ply", "summary.json"]
     removed = np.load(tmp_path / "out" / "removed.npy")
     assert removed.dtype == bool and removed.shape == (5376,)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())

@@ -2,7 +2,8 @@
 
 :func:`filter_scene` is the unit of work of a batch. It is a plain function (no Ray), so a
 batch run and a single ``clearsplat filter`` run write the same files: ``gaussians.ply``,
-``removed.npy``, ``summary.json`` (whose ``timings`` are the only values that change from run
+``removed.npy``, ``removed.ply`` and ``candidates.npz`` (for ``clearsplat edit``),
+``summary.json`` (whose ``timings`` are the only values that change from run
 to run), ``report/`` with ``report=True``, and the marker of :mod:`clearsplat.io.output`.
 """
 
@@ -22,7 +23,8 @@ __all__ = ["write_filter_outputs", "filter_scene", "is_complete", "ply_vertex_co
            "estimate_scene_memory", "FILTER_FILES"]
 
 #: The files every ``clearsplat filter`` output folder holds.
-FILTER_FILES = ("cameras.json", "gaussians.ply", "removed.npy", "summary.json")
+FILTER_FILES = ("cameras.json", "gaussians.ply", "removed.npy", "summary.json",
+                "candidates.npz", "removed.ply")
 
 
 def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
@@ -63,6 +65,13 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
         write_ply(os.path.join(folder, "gaussians.ply"), sub.gaussians,
                   view_id=sub.view_id, pixel_id=sub.pixel_id)
     np.save(os.path.join(folder, "removed.npy"), np.ascontiguousarray(result.removed, dtype=bool))
+    # what 'clearsplat edit' needs to flip a verdict: the candidates, the removed Gaussians
+    from ..review import CANDIDATES_FILE, REMOVED_FILE, write_candidates
+    write_candidates(os.path.join(folder, CANDIDATES_FILE), result.candidates,
+                     num_gaussians=len(scene))
+    gone = scene.subset(result.removed)
+    write_ply(os.path.join(folder, REMOVED_FILE), gone.gaussians, view_id=gone.view_id,
+              pixel_id=gone.pixel_id)
     with open(os.path.join(folder, "summary.json"), "w") as f:
         json.dump(result.summary(), f, indent=1)
     if source is not None:

@@ -21,8 +21,8 @@ __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: The commands, in the order ``clearsplat --help`` lists them; each is the module of that
 #: name (with a trailing underscore where the name is a Python keyword: ``import_``).
-COMMANDS = ("demo", "import", "filter", "view", "video", "render", "export", "batch", "bench",
-            "prepare", "eval")
+COMMANDS = ("demo", "import", "filter", "edit", "view", "video", "render", "export", "batch",
+            "bench", "prepare", "eval")
 
 
 class _Parser(argparse.ArgumentParser):
