@@ -123,3 +123,97 @@ def test_import_with_colmap_cameras_views_by_name_and_scaled_cameras(exported, t
     assert np.array_equal(imported.pixel_id, scene.pixel_id[order])
     assert json.loads((bundle / "import.json").read_text())["inside_pixel"] == 1.0
     assert np.allclose(imported.cameras[1].K, scene.cameras[1].K)
+
+
+@pytest.fixture(scope="module")
+def every_export(exported, tmp_path_factory):
+    """The fixture's scene written by every format's export (``export_matrix.py``)."""
+    from export_matrix import write_every_export
+    root, scene, _ = exported
+    return write_every_export(tmp_path_factory.mktemp("every"), scene)
+
+
+def test_wrong_format_is_refused_naming_the_format_that_fits(exported, every_export,
+                                                            tmp_path, capsys):
+    """An MVSplat export (viewer frame) imported as depthsplat: one line naming the file, the
+    field and the command that imports it, exit 2, nothing written; --allow-misaligned keeps
+    it with a warning; imported as mvsplat it fits."""
+    from clearsplat.io.importers import MIN_NEAR_SHARE
+    root, _, _ = exported
+    ply = every_export["mvsplat"]
+    args = ["--cameras", str(root / "cameras.json"), "--images", str(root / "images")]
+    out = tmp_path / "b"
+    assert main(["import", "depthsplat", str(ply), *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"clearsplat: error: {ply}: format: read as depthsplat "
+                             "(first-rotation frame), only 0.")
+    assert "the vertices fit mvsplat's viewer frame: clearsplat import mvsplat ... " in err[0]
+    assert "--allow-misaligned" in err[0]
+    assert not out.exists()
+
+    assert main(["import", "depthsplat", str(ply), *args, "--out", str(out),
+                 "--allow-misaligned"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("clearsplat: warning: kept with "
+                                               "--allow-misaligned")
+    report = json.loads((out / "import.json").read_text())
+    assert report["near_pixel"] < 0.01 and report["format"] == "depthsplat"
+    assert len(load_scene(out)) == report["num_vertices"]
+
+    right = tmp_path / "right"
+    assert main(["import", "mvsplat", str(ply), *args, "--out", str(right)]) == 0
+    assert capsys.readouterr().err == ""
+    assert json.loads((right / "import.json").read_text())["near_pixel"] == 1.0 > MIN_NEAR_SHARE
+
+
+def test_misaligned_import_without_a_fitting_format_names_the_cameras(exported, tmp_path,
+                                                                    capsys):
+    """The right format with the context views in the wrong order: no format fits, and the
+    message says what else to check."""
+    root, _, _ = exported
+    out = tmp_path / "b"
+    assert main(["import", "depthsplat", str(root / "gaussians.ply"), "--cameras",
+                 str(root / "cameras.json"), "--images", str(root / "images"),
+                 "--views", "1,0,2,3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"clearsplat: error: {root / 'gaussians.ply'}: vertex: only ")
+    assert "--views" in err[0] and "no other format's frame fits" in err[0]
+    assert not out.exists()
+
+
+def test_pixelsplat_figure_export_as_depthsplat_suggests_the_layout_flags(exported,
+                                                                          tmp_path):
+    """A suggestion keeps the layout the import was given when the other format's defaults
+    differ (pixelSplat's figure script: trim 8, view fastest)."""
+    from export_matrix import prediction
+
+    from clearsplat.errors import ClearsplatError
+    from clearsplat.io.importers import import_export
+    _, scene, _ = exported
+    path = tmp_path / "figure.ply"
+    up.pixelsplat_figure_export(path, prediction(scene), height=H, width=W)
+    cams = scene.cameras
+    with pytest.raises(ClearsplatError) as e:
+        import_export(path, "depthsplat", cams)
+    assert e.value.field == "format" and "\n" not in str(e.value)
+    assert "clearsplat import pixelsplat --order hwsv --trim 8 ..." in str(e.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("pose", [0, 2])
+def test_the_threshold_separates_right_and_wrong_formats(exported, tmp_path, pose):
+    """Every format's export imported as every format: the right one puts at least
+    MIN_NEAR_SHARE of the vertices near their pixel, also with cameras off by twice the
+    realism pose error (0.5 degrees); every wrong one that passes the layout and opacity
+    checks puts fewer than a tenth of it there (docs/backbones.md has the table)."""
+    from export_matrix import SAME_FRAME, _measure
+
+    from clearsplat.io.importers import MIN_NEAR_SHARE
+    shares = _measure((H, W), pose, tmp_path)
+    right = {k[0]: v for k, v in shares.items() if k[0] == k[1]}
+    wrong = {k: v for k, v in shares.items() if k[0] != k[1] and frozenset(k) not in SAME_FRAME}
+    assert len(right) == 8 and len(wrong) >= 15
+    assert min(right.values()) >= MIN_NEAR_SHARE + 0.15, right
+    assert max(wrong.values()) < MIN_NEAR_SHARE / 10, wrong

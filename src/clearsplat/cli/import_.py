@@ -43,6 +43,10 @@ def add_parser(sub) -> None:
                    help="move principal points by +0.5 px (VGGT pixel convention; anysplat's "
                         "default)")
     p.add_argument("--no-half-pixel", dest="half_pixel", action="store_false")
+    p.add_argument("--allow-misaligned", action="store_true",
+                   help="write the bundle even when fewer than half of the Gaussians project "
+                        "near their pixel (by default such an import is refused: its "
+                        "association is wrong, docs/backbones.md)")
     p.add_argument("--force", action="store_true",
                    help="replace an --out folder that an earlier clearsplat run wrote")
     p.set_defaults(func=run)
@@ -51,7 +55,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..errors import ClearsplatError
     from ..io import save_scene
-    from ..io.importers import import_export, load_views
+    from ..io.importers import MIN_NEAR_SHARE, import_export, load_views
     from ..io.output import check_output_folder, output_folder
 
     inputs = [args.ply, args.cameras, args.images]
@@ -70,11 +74,16 @@ def run(args) -> int:
     scene, report = import_export(
         args.ply, args.format, cameras, images, trim=args.trim, spp=args.spp,
         opacity_cut=args.opacity_cut, order=args.order, grid=grid, align=args.align,
-        voxelized=args.voxelized, half_pixel=args.half_pixel)
+        voxelized=args.voxelized, half_pixel=args.half_pixel,
+        allow_misaligned=args.allow_misaligned)
     print(f"{args.format}: {report.summary()}")
     for note in report.notes:
         print(f"  note: {note}")
-    if report.num_vertices and scene.is_pixel_aligned and report.inside_pixel < 0.9:
+    if report.num_vertices and scene.is_pixel_aligned and report.near_pixel < MIN_NEAR_SHARE:
+        warn(f"kept with --allow-misaligned: only {100 * report.near_pixel:.1f} % of the "
+             f"Gaussians project within {report.near_px:.3g} px of their pixel: the "
+             "association is wrong where they do not")
+    elif report.num_vertices and scene.is_pixel_aligned and report.inside_pixel < 0.9:
         warn(f"only {100 * report.inside_pixel:.1f} % of the Gaussians project into their "
              "pixel: the cameras, their order (--views), the images' size or the format's "
              "options do not match the export")

@@ -62,9 +62,18 @@ from ..scene import Gaussians, Scene
 from .exports import read_export
 
 __all__ = ["EXPORT_FORMATS", "ExportFormat", "ImportReport", "import_export", "export_slots",
-           "viewer_rotation", "load_views"]
+           "viewer_rotation", "load_views", "NEAR_FRACTION", "MIN_NEAR_SHARE"]
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+#: A vertex is *near* its pixel when its projection lies within this fraction of the image's
+#: larger side (at least 1 px) of the pixel centre along each axis: 3.2 px at 160 pixels wide.
+NEAR_FRACTION = 0.02
+#: An import with fewer pixel-aligned vertices near their pixel is refused (unless
+#: ``allow_misaligned``): correct imports of every format put 100 % there with the model's
+#: cameras and >= 68 % with cameras off by 0.5 degrees, a wrong format <= 3.4 %
+#: (``docs/backbones.md``, "Wrong formats are refused"; ``python tests/export_matrix.py``).
+MIN_NEAR_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -190,6 +199,11 @@ class ImportReport:
         Distance, in pixels, from each such projection to its pixel centre.
     grid : (rows, cols)
     notes : list of str
+    near_pixel : float
+        Fraction of pixel-aligned vertices whose projection lies within ``near_px`` of their
+        pixel centre along each axis; below :data:`MIN_NEAR_SHARE` the import is refused.
+    near_px : float
+        ``max(1, NEAR_FRACTION * max(height, width))``.
     """
 
     format: str
@@ -202,6 +216,8 @@ class ImportReport:
     p99_px: float
     grid: tuple
     notes: list = field(default_factory=list)
+    near_pixel: float = 0.0
+    near_px: float = 1.0
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -213,7 +229,8 @@ class ImportReport:
             f"({', '.join(f'{x:.4g}' for x in self.shift)})")
         return (f"{self.num_vertices:,} vertices; {100 * self.inside_pixel:.2f} % project into "
                 f"their pixel (median {self.median_px:.3f} px, 99th percentile "
-                f"{self.p99_px:.3f} px){fit}")
+                f"{self.p99_px:.3f} px), {100 * self.near_pixel:.2f} % within "
+                f"{self.near_px:.3g} px{fit}")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -370,7 +387,8 @@ def _residuals(means, cameras, view_id, pixel_id):
 def import_export(path, format: str, cameras, images=None, *, trim: int | None = None,
                   spp: int | None = None, opacity_cut: float | None = None,
                   order: str | None = None, grid: tuple | None = None, align: str = "auto",
-                  voxelized: bool | None = None, half_pixel: bool | None = None):
+                  voxelized: bool | None = None, half_pixel: bool | None = None,
+                  allow_misaligned: bool = False):
     """Read a model's PLY export as a scene with ``view_id`` and ``pixel_id``.
 
     Parameters
@@ -397,6 +415,10 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         file holds no association and is refused.
     half_pixel : bool, optional
         Move the cameras' principal points by +0.5 px (VGGT's pixel convention, AnySplat).
+    allow_misaligned : bool
+        Return the scene even when fewer than :data:`MIN_NEAR_SHARE` of the pixel-aligned
+        vertices project near their pixel (``ImportReport.near_pixel``); by default such an
+        import, whose association is wrong, is refused.
 
     Returns
     -------
@@ -412,11 +434,14 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     ClearsplatError
         In one line, naming the file: the vertex count does not fit the layout (with the
         layouts that would fit, or why the association is lost: an opacity cut, voxels);
-        the opacity column does not hold what the format says; bad cameras or images.
+        the opacity column does not hold what the format says; the vertices do not project
+        near their pixels (field ``format`` with the formats whose frame fits, else
+        ``vertex``); bad cameras or images.
     """
     if format not in EXPORT_FORMATS:
         raise ClearsplatError(f"unknown format {format!r} (known: "
                               f"{', '.join(EXPORT_FORMATS)})", field="format")
+    given = list(cameras)
     fmt = EXPORT_FORMATS[format]
     fmt = replace(fmt, **{k: v for k, v in dict(
         trim=trim, spp=spp, opacity_cut=opacity_cut, order=order, voxelized=voxelized,
@@ -429,7 +454,7 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         raise ClearsplatError(f"must be >= 0, got {fmt.trim}", field="trim")
     if int(fmt.spp) < 1:
         raise ClearsplatError(f"must be >= 1, got {fmt.spp}", field="spp")
-    cams = _checked_cameras(cameras)
+    cams = _checked_cameras(given)
     v, h, w = len(cams), cams[0].height, cams[0].width
     if fmt.half_pixel:
         cams = [_shift_principal_point(c, 0.5) for c in cams]
@@ -509,6 +534,8 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     inside = float((np.abs(fin) <= 0.5 + 1e-3).all(axis=1).sum() / aligned_n) if aligned_n \
         else 0.0
     dist = np.linalg.norm(fin, axis=1) if len(fin) else np.array([np.nan])
+    near_px = max(1.0, NEAR_FRACTION * max(h, w))
+    near = float((np.abs(res) <= near_px).all(axis=1).sum() / aligned_n) if aligned_n else 0.0
     if not aligned_n:
         notes.append("no vertex is pixel-aligned (latent grid): the filter associates them "
                      "through the rasterizer")
@@ -518,8 +545,55 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
                           shift=[float(x) for x in b], aligned=mode, inside_pixel=inside,
                           median_px=float(np.median(dist)) if aligned_n else float("nan"),
                           p99_px=float(np.percentile(dist, 99)) if aligned_n else float("nan"),
-                          grid=(gh, gw), notes=notes)
+                          grid=(gh, gw), notes=notes, near_pixel=near, near_px=near_px)
+    if aligned_n and near < MIN_NEAR_SHARE and not allow_misaligned:
+        raise _misaligned(path, format, fmt, given, report)
     return scene, report
+
+
+def _misaligned(path, format, fmt, cameras, report) -> ClearsplatError:
+    """The refusal of an import whose vertices miss their pixels, naming the formats that fit.
+
+    Every other format is tried with its own defaults and with the layout (order, trim,
+    spp) this import used; those that put at least :data:`MIN_NEAR_SHARE` of the vertices
+    near their pixel are named with the command line that imports them.
+    """
+    share = (f"only {100 * report.near_pixel:.1f} % of the pixel-aligned vertices project "
+             f"within {report.near_px:.3g} px of their pixel (at least "
+             f"{100 * MIN_NEAR_SHARE:.0f} % needed)")
+    keep = "allow_misaligned=True (--allow-misaligned) keeps it anyway"
+    fits = []
+    for name, other in EXPORT_FORMATS.items():
+        if name == format:
+            continue
+        layouts = [{}]
+        mine = dict(order=fmt.order, trim=fmt.trim, spp=fmt.spp)
+        if any(getattr(other, k) != v for k, v in mine.items()):
+            layouts.append(mine)
+        for layout in layouts:
+            extra = dict(voxelized=False) if other.voxelized else {}
+            try:
+                _, rep = import_export(path, name, cameras, align="auto",
+                                       allow_misaligned=True, **layout, **extra)
+            except ClearsplatError:
+                continue
+            if rep.near_pixel >= MIN_NEAR_SHARE:
+                flags = "".join(f" --{k} {v}" for k, v in layout.items()
+                                if getattr(other, k) != v)
+                flags += " --no-voxels" if extra else ""
+                fits.append((-rep.near_pixel, bool(flags), name, other.frame, flags))
+                break
+    if not fits:
+        return ClearsplatError(
+            f"{share}: the association is wrong; the cameras (their order, --views), the "
+            f"image size or the format's options do not match the export, and no other "
+            f"format's frame fits the pixel rays; {keep}", path=path, field="vertex")
+    fits.sort()
+    named = " or ".join(f"{name}'s {frame} frame: clearsplat import {name}{flags} ... "
+                        f"({100 * -s:.0f} % near)" for s, _, name, frame, flags in fits)
+    return ClearsplatError(f"read as {format} ({fmt.frame} frame), {share}: the file is not "
+                           f"{format}'s export; the vertices fit {named}; {keep}",
+                           path=path, field="format")
 
 
 def _render_settings(format: str):
