@@ -506,3 +506,178 @@ def test_view_command_prints_the_url_and_serves(filtered):
 def test_view_refuses_an_address_of_another_machine(filtered, capsys):
     code, _, err = run(["view", filtered[0], "--host", "192.0.2.1"], capsys)   # TEST-NET-1
     assert code == 2 and "--host" in err and len(err.splitlines()) == 1
+
+
+# ------------------------------------------------------------------------------------------------
+# the review panel
+# ------------------------------------------------------------------------------------------------
+def _scores(out) -> list:
+    s = json.loads((out / "summary.json").read_text())
+    return [c["scores"].get("individual", -np.inf) for c in s["candidates"]]
+
+
+def test_review_panel_edits_as_the_cli_does(filtered, tmp_path, capsys):
+    """List, filters, selection, toggle and save change the scene's state as `edit` would."""
+    pytest.importorskip("viser")
+    from clearsplat.review import load_filter_output
+    from clearsplat.viewer import SELECTED_COLOUR, serve
+    scene_dir, out = filtered
+    scene = clearsplat.load_scene(scene_dir)
+    output = load_filter_output(out)
+    viewer = serve(scene, filtered=out, port=_free_port())
+    try:
+        review = viewer.review
+        scores = _scores(out)
+        k_all = len(scores)
+        assert k_all >= 2
+        # the list: every candidate, best individual score first
+        assert review.selected is None and viewer.highlight.size == 0
+        listed = [int(o.split(" ", 1)[0][1:]) for o in review.choice.options[1:]]
+        assert listed == sorted(range(k_all), key=lambda k: (-scores[k], k))
+        for k, option in zip(listed, review.choice.options[1:]):
+            verdict = "accepted" if output.accepted[k] else "rejected"
+            assert f"view {output.candidates[k]['view']}" in option and verdict in option
+        review.list_filter.value = "accepted"
+        assert review.listed() == [k for k in listed if output.accepted[k]]
+        review.list_filter.value = "rejected"
+        assert review.listed() == [k for k in listed if not output.accepted[k]]
+        review.list_filter.value = "all"
+        review.view_filter.value = "view 1"
+        assert review.listed() == [k for k in listed if output.candidates[k]["view"] == 1]
+        review.view_filter.value = "all views"
+        # selecting: highlight, camera at the candidate's view, crops
+        k = next(k for k in listed if output.accepted[k])
+        review.choice.value = review.label(k)
+        assert review.selected == k
+        assert np.array_equal(viewer.highlight, output.sets.removal(k))
+        assert viewer.shown()[viewer.highlight].all()      # shown although removed
+        view = output.candidates[k]["view"]
+        assert np.allclose(viewer.server.initial_camera.position,
+                           scene.cameras[view].position)
+        assert [f.visible for f in viewer.frustums].count(False) == 1
+        assert not viewer.frustums[view].visible
+        crops = review.crops.image
+        assert crops.ndim == 3 and crops.shape[1] > 2 * crops.shape[0]
+        assert (np.abs(crops.astype(int) - np.array(SELECTED_COLOUR) * 255) < 2).all(-1).any()
+        assert review.accepted.value is True
+        # the toggle: reject it, the scene follows
+        review.accepted.value = False
+        assert review.edits() == ([k], [])
+        code, _, err = _run_edit(["edit", out, "--reject", k, "--out", tmp_path / "cli"],
+                                 capsys)
+        assert code == 0, err
+        cli_removed = np.load(tmp_path / "cli" / "removed.npy")
+        assert np.array_equal(review.removed, cli_removed)
+        assert np.array_equal(viewer.keep, ~cli_removed)
+        viewer.set_show("filtered")
+        shown = viewer.shown()
+        assert np.array_equal(shown, ~cli_removed | np.isin(np.arange(len(shown)),
+                                                           viewer.highlight))
+        # accept a rejected one as well, then flip the first back and forth
+        j = next(j for j in listed if not output.accepted[j] and output.sets.removal(j).size)
+        review.select(j)
+        review.flip()
+        review.flip(k)
+        review.flip(k)
+        assert review.edits() == ([k], [j])
+        # save: the same folder as the command it prints
+        review.out_text.value = str(tmp_path / "viewer")
+        review.save_button.value = True                  # a click
+        command = review.saved[1]
+        printed = capsys.readouterr().out
+        assert command in printed and command in review.status.content
+        assert command == (f"clearsplat edit {out} --reject {k} --accept {j} "
+                           f"--out {tmp_path / 'viewer'}")
+        code, _, err = _run_edit(command.split()[1:-1] + [str(tmp_path / "cli2")], capsys)
+        assert code == 0, err
+        for name in ("removed.npy", "gaussians.ply", "removed.ply", "candidates.npz"):
+            assert (tmp_path / "viewer" / name).read_bytes() == \
+                (tmp_path / "cli2" / name).read_bytes(), name
+        assert np.array_equal(np.load(tmp_path / "viewer" / "removed.npy"), review.removed)
+        # a second save onto it needs the checkbox, and says why it did not save
+        review.save_button.value = True
+        assert "Not saved" in review.status.content and "--force" in review.status.content
+        # clicking a splat selects its candidate; a click into nothing changes nothing
+        g = viewer.scene.gaussians.means[output.sets.removal(k)]
+        eye = scene.cameras[view].position
+        assert review.pick(eye, g[0] - eye) == k
+        assert review.pick(eye, -(g[0] - eye)) is None
+    finally:
+        viewer.stop()
+
+
+def _run_edit(argv, capsys):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_review_panel_needs_candidate_data(filtered, tmp_path):
+    pytest.importorskip("viser")
+    from clearsplat.viewer import serve
+    scene_dir, out = filtered
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    (old / "candidates.npz").unlink()
+    scene = clearsplat.load_scene(scene_dir)
+    viewer = serve(scene, filtered=old, port=_free_port())
+    try:
+        assert viewer.review is None and viewer.current == "filtered"
+        assert np.array_equal(viewer.keep, ~np.load(out / "removed.npy"))
+    finally:
+        viewer.stop()
+    with pytest.raises(ClearsplatError) as e:
+        serve(scene, filtered=out, port=_free_port(), select=99)
+    assert e.value.field == "select"
+
+
+def _highlight_fraction(img) -> float:
+    from clearsplat.viewer import SELECTED_COLOUR
+    target = np.array(SELECTED_COLOUR) * 255
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    # the highlight colour blended over whatever is behind it: green well above red and blue
+    return float(((g > 80) & (r < 0.5 * g * max(target[0] / target[1], 0.3))
+                  & (b < 0.6 * g)).mean())
+
+
+@pytest.mark.slow
+def test_review_selection_in_headless_chromium(filtered, tmp_path):
+    """A selected candidate's Gaussians show in the highlight colour in a real browser."""
+    pytest.importorskip("viser")
+    browser = _chromium()
+    if browser is None:
+        pytest.skip("no Chromium on this machine (Debian: apt-get install chromium)")
+    from clearsplat.review import load_filter_output
+    from clearsplat.viewer import serve
+    scene_dir, out = filtered
+    scene = clearsplat.load_scene(scene_dir)
+    output = load_filter_output(out)
+    k = max(range(len(output.sets)), key=lambda k: output.sets.removal(k).size)
+    view = int(output.sets.view[k])
+
+    def shot(select, name):
+        viewer = serve(scene, filtered=out, port=_free_port(), select=select)
+        if select is None:
+            viewer.look_through(view)             # the same camera, nothing selected
+        fraction = 0.0
+        try:
+            for attempt, budget in enumerate((8000, 20000, 45000)):
+                path = tmp_path / f"{name}{attempt}.png"
+                subprocess.run([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
+                                "--enable-unsafe-swiftshader", "--hide-scrollbars",
+                                f"--user-data-dir={tmp_path / 'profile'}",
+                                "--window-size=800,600", f"--virtual-time-budget={budget}",
+                                f"--screenshot={path}", viewer.url],
+                               check=True, timeout=180, capture_output=True)
+                img = png(path).astype(int)
+                fraction = _highlight_fraction(img)
+                lit = (img.max(-1) > 40).mean()
+                if (select is None and lit > 0.2) or fraction > 0.002:
+                    break
+        finally:
+            viewer.stop()
+        return fraction
+
+    selected = shot(k, "selected")
+    plain = shot(None, "plain")
+    assert selected > 0.002 and selected > 3 * plain, (selected, plain)

@@ -20,7 +20,7 @@ from .review import edit_command, edit_filter_output, edit_removed
 
 #: The "List" filter's choices.
 LISTS = ("all", "accepted", "rejected", "edited")
-_NONE = "(no candidate listed)"
+_NONE = "(choose a candidate)"
 _ROWS = 60                              # rows of the table (the dropdown lists them all)
 
 
@@ -135,9 +135,9 @@ class Review:
     def update_list(self) -> None:
         """Refresh the dropdown, the table and the counts after a change."""
         ks = self.listed()
-        labels = [self.label(k) for k in ks] or [_NONE]
+        labels = [_NONE] + [self.label(k) for k in ks]
         self.choice.options = labels
-        current = self.label(self.selected) if self.selected in ks else labels[0]
+        current = self.label(self.selected) if self.selected in ks else _NONE
         if self.choice.value != current:
             self.choice.value = current
         reject, accept = self.edits()

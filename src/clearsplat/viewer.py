@@ -22,6 +22,7 @@ it follows the same OpenCV camera axes as clearsplat (``docs/conventions.md``). 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -219,6 +220,12 @@ def serve(scene, *, keep=None, filtered=None, host: str = "127.0.0.1", port: int
                                   path=output.folder / "removed.npy", field="removed")
         if keep is None and output is not None:
             keep = ~output.removed
+        elif keep is None:              # no candidate data: the removal alone
+            try:
+                keep = ~np.load(os.path.join(filtered, "removed.npy"), allow_pickle=False)
+            except (OSError, ValueError) as e:
+                raise ClearsplatError(f"cannot read ({e})", path=os.path.join(
+                    filtered, "removed.npy"), field="removed") from None
     if keep is not None:
         keep = np.asarray(keep, dtype=bool)
         if keep.shape != (n,):
