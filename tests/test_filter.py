@@ -7,7 +7,8 @@ from clearsplat import Camera, Gaussians, Scene
 from clearsplat.cameras import look_at
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
-from clearsplat.filter.association import ViewIndex, region_gaussians, verification_views
+from clearsplat.filter.association import ViewIndex, region_gaussians
+from clearsplat.filter.verify import verification_views
 from clearsplat.metrics import removal_stats
 from clearsplat.render import prepare, render
 from clearsplat.synth.backbone import clean_reference, distractor_truth, reconstruct
@@ -143,7 +144,7 @@ def test_one_thread_means_one_thread_for_numpy_steps_too(scene, extractor, monke
         seen.append(workers)
         return real(fn, items, workers=workers)
 
-    for module in ("clearsplat.features.base", "clearsplat.filter.association"):
+    for module in ("clearsplat.features.base", "clearsplat.filter.refine"):
         monkeypatch.setattr(f"{module}.thread_map", spy)
     filter_distractors(scene, config=FilterConfig(num_threads=1), extractor=extractor)
     assert seen and set(seen) == {1}

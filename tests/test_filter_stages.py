@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from clearsplat.filter import FilterConfig
-from clearsplat.filter.association import dilate
+from clearsplat.filter.masks import dilate
 from clearsplat.filter.proposal import (cell_index_map, connected_regions, patch_means,
                                         propose_view, proposal_ranges, support_condition)
 from clearsplat.filter.verify import Partial, change_weighted_terms

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from clearsplat.filter.association import dilate
-from clearsplat.filter.proposal import connected_regions, label8, touched_components
+from clearsplat.filter.masks import dilate, label8, touched_components
+from clearsplat.filter.proposal import connected_regions
 
 
 @pytest.mark.parametrize("seed", range(40))

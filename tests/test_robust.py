@@ -7,7 +7,8 @@ import pytest
 from clearsplat import ClearsplatError
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
-from clearsplat.filter.association import ViewIndex, revealing_gaussians
+from clearsplat.filter.association import ViewIndex
+from clearsplat.filter.refine import revealing_gaussians
 from clearsplat.filter.robust import (photometric_alignment, tolerant_images, tolerant_reference,
                                       view_depth_scales)
 from clearsplat.filter.verify import Partial, change_weighted_terms
@@ -200,7 +201,7 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
 def test_verification_mask_modes(soft_scene):
     """``"revealing"`` leaves out exactly the verifying view's unreliable pixels, ``"auto"`` is
     ``"revealing"`` with eight or more views and ``"proposals+revealing"`` with fewer."""
-    from clearsplat.filter.pipeline import _exclusion_masks
+    from clearsplat.filter.verify import exclusion_masks as _exclusion_masks
     scene, _ = soft_scene
     ex = get_extractor("local")
     res = {m: filter_distractors(scene, config=FilterConfig(verify_mask=m), extractor=ex)
@@ -241,7 +242,8 @@ def test_config_specs_read_values_with_a_plus():
 def test_grow_connected_adds_the_touched_in_front_groups_of_low_similarity():
     from types import SimpleNamespace
     from clearsplat import Camera, Gaussians, Scene
-    from clearsplat.filter.pipeline import _grow_connected
+    from clearsplat.filter.expansion import grow_connected as _grow_connected
+    from clearsplat.filter.refine import pixels_of
     h, w = 8, 8
     n = h * w
     cam = Camera(np.array([[8.0, 0, 4], [0, 8.0, 4], [0, 0, 1]]), np.eye(4), w, h)
@@ -259,15 +261,16 @@ def test_grow_connected_adds_the_touched_in_front_groups_of_low_similarity():
     proposal = SimpleNamespace(similarity=similarity)
     region = np.zeros((h, w), bool)
     region[2, 1] = True
-    out = _grow_connected(region, 0, {}, scene, index, front.ravel(), proposal, 0.69)
+    front_px = pixels_of(scene, index, 0, front.ravel())
+    np.testing.assert_array_equal(front_px, front)     # pixel-aligned: Gaussian k at pixel k
+    out = _grow_connected(region, 0, {}, front_px, proposal, 0.69)
     expected = region.copy()
     expected[1:3, 1:4] = True       # the touched group, cut at the similar cell
     np.testing.assert_array_equal(out, expected)
     # a region touching nothing in front stays as it is
     lone = np.zeros((h, w), bool)
     lone[5, 0] = True
-    np.testing.assert_array_equal(_grow_connected(lone, 0, {}, scene, index, front.ravel(),
-                                                  proposal, 0.69), lone)
+    np.testing.assert_array_equal(_grow_connected(lone, 0, {}, front_px, proposal, 0.69), lone)
 
 
 def test_expand_connected_only_adds_to_the_expansion(soft_scene):
@@ -378,14 +381,14 @@ def round_calls(monkeypatch):
     """The Gaussians each round of the filter removes, one entry per round run."""
     import clearsplat.filter.pipeline as pipeline
     calls = []
-    run = pipeline._filter_round
+    run = pipeline.run_round
 
     def counted(sc, *args, **kwargs):
         out = run(sc, *args, **kwargs)
         calls.append(int((~out[0].keep).sum()))
         return out
 
-    monkeypatch.setattr(pipeline, "_filter_round", counted)
+    monkeypatch.setattr(pipeline, "run_round", counted)
     return calls
 
 
@@ -466,12 +469,12 @@ def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene):
 def test_second_round_memory_check_counts_what_the_first_hands_on(soft_scene, monkeypatch):
     """The views and renders round 1 hands on become round 2's (or are dropped) as it goes:
     the check before round 2 counts them as available instead of needing them twice."""
-    import clearsplat.filter.pipeline as pipeline
+    import clearsplat.filter.backend as backend
     scene, _ = soft_scene
     calls = []
-    monkeypatch.setattr(pipeline, "check_memory",
+    monkeypatch.setattr(backend, "check_memory",
                         lambda estimate, available=None: calls.append((estimate, available)))
-    monkeypatch.setattr(pipeline, "available_memory", lambda: 10**6)
+    monkeypatch.setattr(backend, "available_memory", lambda: 10**6)
     res = filter_distractors(scene, config=FilterConfig(rounds=2),
                              extractor=get_extractor("local"))
     assert max(c.round for c in res.candidates) == 2
@@ -523,7 +526,7 @@ def _joined_by_flood_fill(seeds, weak, pixels, h, w):
 
 
 def test_join_touching_matches_a_flood_fill():
-    from clearsplat.filter.association import join_touching
+    from clearsplat.filter.refine import join_touching
     rng = np.random.default_rng(11)
     for trial in range(30):
         h, w = rng.integers(1, 40, size=2)

@@ -13,10 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..features import upsample_nearest
+from .masks import label8
 
 __all__ = [
     "ViewProposal", "Region", "cell_index_map", "patch_means", "support_condition",
-    "proposal_ranges", "connected_regions", "propose_view",
+    "proposal_ranges", "connected_regions", "propose_view", "propose",
 ]
 
 
@@ -151,69 +152,6 @@ def connected_regions(ranges: np.ndarray, which: int) -> list[np.ndarray]:
     labels, count = label8(ranges == which)
     return [labels == k for k in range(1, count + 1)]
 
-
-def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
-    """8-connected components of a (h, w) bool mask: labels 1..count (0 outside), numbered
-    in the order of each component's first pixel in row-major order.
-
-    The numbering of ``scipy.ndimage.label`` with a 3x3 structure, without importing SciPy.
-    Works on runs (horizontal stretches of True): two runs of neighbouring rows touch when
-    their column ranges overlap or meet at a corner. The components of that graph of runs come
-    from hooking each root to the smallest root it touches and pointer jumping, all in array
-    operations; each component ends up named by its first run.
-    """
-    mask = np.asarray(mask, dtype=bool)
-    h, w = mask.shape
-    labels = np.zeros((h, w), dtype=np.int32)
-    if not mask.any():
-        return labels, 0
-    padded = np.zeros((h, w + 2), dtype=np.int8)
-    padded[:, 1:-1] = mask
-    edges = np.diff(padded, axis=1)           # +1 where a run starts, -1 past its end
-    row, start = np.nonzero(edges == 1)
-    _, end = np.nonzero(edges == -1)          # exclusive; runs in row-major order
-    runs = start.size
-    # Touching pairs (a, b), b in the next row: s_b <= e_a and s_a <= e_b. Keys row * W + col
-    # (W > w) keep the rows apart, so one search over all runs finds b's range for every a.
-    wide = w + 2
-    lo = np.searchsorted(row * wide + end, (row + 1) * wide + start, side="left")
-    hi = np.searchsorted(row * wide + start, (row + 1) * wide + end, side="right")
-    count = np.maximum(hi - lo, 0)
-    a = np.repeat(np.arange(runs), count)
-    b = np.repeat(lo, count) + (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count,
-                                                                          count))
-    root = np.arange(runs)
-    while a.size:
-        ra, rb = root[a], root[b]
-        differ = ra != rb
-        if not differ.any():
-            break
-        a, b, ra, rb = a[differ], b[differ], ra[differ], rb[differ]
-        np.minimum.at(root, np.maximum(ra, rb), np.minimum(ra, rb))   # hook to a smaller root
-        while True:                                                   # then point to roots
-            up = root[root]
-            if np.array_equal(up, root):
-                break
-            root = up
-    is_root = root == np.arange(runs)
-    number = np.cumsum(is_root).astype(np.int32)     # a root's component number, in run order
-    lengths = end - start
-    flat = labels.reshape(-1)
-    offsets = np.repeat(row * w + start, lengths) + (
-        np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths))
-    flat[offsets] = np.repeat(number[root], lengths)
-    return labels, int(is_root.sum())
-
-
-def touched_components(labels: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """Bool mask of the shape of ``labels``: the components (labels > 0, as :func:`label8`
-    numbers them) that hold a pixel of ``where`` (a bool mask of the same shape)."""
-    reached = np.zeros(int(labels.max(initial=0)) + 1, dtype=bool)
-    reached[labels[where]] = True
-    reached[0] = False
-    return reached[labels]
-
-
 def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
                  depth_full: np.ndarray, depth_excluded: np.ndarray, *, eta: float,
                  tau1: float, tau2: float, second_range: bool = True,
@@ -245,3 +183,37 @@ def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
             masks[r] |= pixels
     out.mask1, out.mask2 = masks[1], masks[2]
     return out
+
+
+def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
+    """The proposal of every input view (the paper's "Distractor Proposal").
+
+    Parameters
+    ----------
+    state : RoundState
+    renders : ExclusionRenders
+        R_i and R_i^-i of every view.
+    images : list of (H, W, 3) float32
+        The input images the comparison uses (photometrically aligned where configured).
+    extractor : FeatureExtractor
+        Gives the similarity s_i between each input and its exclusion render.
+
+    Returns
+    -------
+    list of ViewProposal, one per view: s_i, the support g_i, the ranges B_i^1 and B_i^2 and
+    their regions M_k.
+    """
+    config, excl, full = state.config, renders.excl, renders.full
+    pair = (np.stack(images), np.stack([r.rgb for r in excl]))
+    # Threads as the rasterizer's (config.num_threads), for extractors that use them.
+    sims = (extractor.similarity(*pair, workers=config.num_threads)
+            if getattr(extractor, "pairs_in_threads", False) else extractor.similarity(*pair))
+    state.lap("features")
+    proposals = []
+    for i in range(state.num_views):
+        proposals.append(propose_view(
+            i, sims[i], excl[i].alpha, full[i].depth, excl[i].depth, eta=config.eta,
+            tau1=state.tau1, tau2=state.tau2, second_range=config.second_range,
+            single_threshold=config.single_threshold))
+        proposals[-1].exclusion = excl[i].rgb
+    return proposals

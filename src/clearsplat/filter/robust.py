@@ -19,7 +19,7 @@ the ``paper`` presets):
 - :func:`tolerant_images` (``verify_tolerance``): per pixel, the range of the input colours
   within a small radius; a render colour inside that range counts as no error, so a small
   misregistration (pose error, edge bleeding) does not count as evidence either way.
-- ``min_relative_score`` (in :mod:`clearsplat.filter.verify` and the pipeline): a test passes
+- ``min_relative_score`` (in :mod:`clearsplat.filter.verify`): a test passes
   only if the removal takes away a large enough share of the error it touches.
 """
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["photometric_alignment", "view_depth_scales", "tolerant_images",
+__all__ = ["aligned_images", "photometric_alignment", "view_depth_scales", "tolerant_images",
            "tolerant_reference", "box_extreme", "misregistration", "local_depth_scales"]
 
 #: Pixels used for a fit need the render this opaque.
@@ -85,6 +85,14 @@ def photometric_alignment(image: np.ndarray, render_rgb: np.ndarray, render_alph
         if 0.5 <= a <= 2.0:
             out[..., c] = (a * out[..., c] + b).astype(np.float32)
     return out
+
+
+def aligned_images(images: list, excl: list, config) -> list:
+    """The input images the comparisons use: as given, or (``photometric_align``) each mapped
+    to the colours of its view's exclusion render R_i^-i (``excl``, RenderResults)."""
+    if not config.photometric_align:
+        return images
+    return [photometric_alignment(im, r.rgb, r.alpha) for im, r in zip(images, excl)]
 
 
 def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.ndarray]

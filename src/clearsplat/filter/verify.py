@@ -1,4 +1,5 @@
-"""Candidate verification: the rendering-change-weighted error reduction.
+"""Candidate verification: the scores, the individual test, the second range's additional and
+joint tests.
 
 Paper, "Candidate Verification". For a removal C and a view j rendered from some base
 representation B:
@@ -13,6 +14,16 @@ A removal changes only the tiles its Gaussians touch, so the incremental path re
 only those (exactly; see ``PreparedView.rerender_tiles``) and the full path re-renders whole
 images. Both visit the changed pixels in the same (row-major) order and sum in float64, so they
 give identical scores.
+
+Each candidate is scored on its verification views V_i (the views that see the most of view
+i's Gaussians, :func:`verification_views`), from the base B_j = R_j^-j:
+
+1. :func:`individual_tests`: every candidate alone; those with a positive score pass.
+2. (:mod:`clearsplat.filter.expansion` expands those that passed.)
+3. :func:`second_range_tests`: first-range candidates that passed are accepted; each
+   second-range one must also pass the *additional* test (its expansion removed from R_j^-j)
+   and then all survivors together the *joint* test, from a base without the accepted
+   first-range Gaussians.
 """
 
 from __future__ import annotations
@@ -21,9 +32,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..render import PreparedView, RenderResult
+from ..scene import Scene
+from .association import ViewIndex
+from .robust import tolerant_images
 
-__all__ = ["Partial", "change_weighted_terms", "Verifier"]
+__all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views", "top_views",
+           "make_verifier", "exclusion_masks", "range_masks", "passes", "individual_tests",
+           "second_range_tests"]
+
+#: ``verify_mask="auto"`` leaves the proposal regions in verification (``"revealing"``) from
+#: this many views on (measured: needed at 8 and 16 views, harmful on clean 4-view scenes).
+_REVEALING_MASK_MIN_VIEWS = 8
 
 
 @dataclass
@@ -101,30 +120,12 @@ def _tolerant_terms(w, base, after, lo, hi) -> Partial:
     return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
 
 
-def tile_pixels(view: PreparedView, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Flat pixel indices of ``tiles`` in tile-major, row-major order, and which exist.
-
-    Returns ``(flat, inside)``, both shaped (T * t * t,) for tile size t; ``flat`` is 0 where
-    the tile reaches past the image border.
-    """
-    t = view.tile_size
-    cols = view.grid[1]
-    height, width = view.camera.height, view.camera.width
-    ty, tx = np.divmod(tiles.astype(np.int64), cols)
-    yy, xx = np.mgrid[0:t, 0:t]
-    rows = ty[:, None, None] * t + yy[None]
-    cc = tx[:, None, None] * t + xx[None]
-    inside = ((rows < height) & (cc < width)).ravel()
-    flat = np.where(inside, (rows * width + cc).ravel(), 0)
-    return flat, inside
-
-
 class Verifier:
     """Scores removals against the input views, incrementally or by full re-renders.
 
     Parameters
     ----------
-    views : list of PreparedView
+    views : view set
         One per input camera, prepared from the whole scene.
     images : list of (H, W, 3) float32
         The input images.
@@ -136,7 +137,7 @@ class Verifier:
         Upper bounds of the input colours; ``images`` are then the lower bounds.
     """
 
-    def __init__(self, views: list[PreparedView], images: list[np.ndarray], *, epsilon: float,
+    def __init__(self, views, images: list[np.ndarray], *, epsilon: float,
                  incremental: bool = True, hole_alpha: float = 0.0,
                  images_hi: list[np.ndarray] | None = None):
         self.views = views
@@ -147,14 +148,14 @@ class Verifier:
         self.incremental = incremental
         self.hole_alpha = float(hole_alpha)
 
-    def score_tiles(self, j: int, base: RenderResult, after: RenderResult, tiles: np.ndarray,
+    def score_tiles(self, j: int, base, after, tiles: np.ndarray,
                     excluded: np.ndarray) -> Partial:
         """Score terms of ``after`` against ``base`` on view ``j``, read only in ``tiles``.
 
         For renders that can differ only inside ``tiles`` (and are exact there); visits the
         pixels in row-major order like the other paths, so the sums agree with them exactly.
         """
-        flat, inside = tile_pixels(self.views[j], np.asarray(tiles))
+        flat, inside = self.views[j].tile_pixels(np.asarray(tiles))
         idx = np.sort(flat[inside])
         return change_weighted_terms(base.rgb.reshape(-1, 3)[idx],
                                      after.rgb.reshape(-1, 3)[idx], self.images[j][idx],
@@ -162,7 +163,7 @@ class Verifier:
                                      after.alpha.reshape(-1)[idx], self.hole_alpha,
                                      self._hi(j, idx))
 
-    def score_view(self, j: int, base_keep: np.ndarray, base: RenderResult,
+    def score_view(self, j: int, base_keep: np.ndarray, base,
                    removals: list[np.ndarray], excluded: np.ndarray) -> list[Partial]:
         """Score terms of each removal on view ``j``.
 
@@ -185,7 +186,7 @@ class Verifier:
         if self.incremental:
             patches = self.views[j].rerender_tiles(keep=base_keep, removals=removals, base=base)
             for patch in patches:
-                flat, inside = tile_pixels(self.views[j], patch.tiles)
+                flat, inside = self.views[j].tile_pixels(patch.tiles)
                 flat = flat[inside]
                 order = np.argsort(flat, kind="stable")
                 idx = flat[order]
@@ -206,3 +207,219 @@ class Verifier:
 
     def _hi(self, j: int, idx) -> np.ndarray | None:
         return None if self.images_hi is None else self.images_hi[j][idx]
+
+
+def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex,
+                       inside: list | None = None) -> list[int]:
+    """The ``count`` other views that see the most centres of ``view``'s Gaussians [V_i].
+
+    Centres count when they have positive depth and fall inside the image; ties go to the
+    lower view index; ``view`` itself is never chosen.
+
+    ``inside``, optional: per view, the (N,) bool :meth:`PreparedView.centres_inside
+    <clearsplat.render.PreparedView.centres_inside>` of its prepared view. The counts then
+    come from the projections already made (about 4x faster at 16 views) and leave out
+    the Gaussians the rasterizer culls (alpha below 1/255, closer than its near plane).
+    """
+    others = [j for j in range(scene.num_views) if j != view]
+    if not others:
+        return []
+    if inside is not None:
+        members = index.members[view]
+        counts = sorted((-int(np.count_nonzero(inside[j][members])), j) for j in others)
+        return [j for _, j in counts[:count]]
+    means = scene.gaussians.means[index.members[view]]
+    # All cameras in one product: (M, 3) @ (3, 3V) plus translations, in float32.
+    w2c = np.stack([scene.cameras[j].world_to_camera for j in others]).astype(np.float32)
+    pc = means @ w2c[:, :3, :3].transpose(2, 0, 1).reshape(3, -1) + w2c[:, :3, 3].reshape(-1)
+    pc = pc.reshape(len(means), len(others), 3)
+    cams = [scene.cameras[j] for j in others]
+    fx, fy, cx, cy, w, h = (np.array([getattr(c, a) for c in cams], dtype=np.float32)
+                            for a in ("fx", "fy", "cx", "cy", "width", "height"))
+    x, y, z = pc[..., 0], pc[..., 1], pc[..., 2]
+    front = z > 0
+    zf = np.where(front, z, np.float32(1.0))
+    u = fx * x / zf + cx
+    v = fy * y / zf + cy
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    counts = sorted(zip((-inside.sum(axis=0)).tolist(), others))
+    return [j for _, j in counts[:count]]
+
+
+def top_views(seen: np.ndarray, view: int, count: int) -> list[int]:
+    """The ``count`` other views that see the most centres of ``view``'s Gaussians inside
+    their image (ties to the lower index) [V_i]: :func:`verification_views` from the counts
+    ``seen[j, v]`` that the exclusion renders made."""
+    others = [j for j in range(seen.shape[0]) if j != view]
+    ranked = sorted((-int(seen[j, view]), j) for j in others)
+    return [j for _, j in ranked[:count]]
+
+
+def make_verifier(state, images: list):
+    """The round's scorer against ``images`` (with ``verify_tolerance``, against the range of
+    input colours around each pixel), leaving out holes where ``verify_holes`` asks."""
+    config = state.config
+    lo, hi = images, None
+    if config.verify_tolerance > 0:
+        bounds = [tolerant_images(im, config.verify_tolerance) for im in images]
+        lo, hi = [b[0] for b in bounds], [b[1] for b in bounds]
+    skip = (state.num_views <= 2 if config.verify_holes == "auto"
+            else config.verify_holes == "skip")
+    return state.backend.verifier(state.views, lo, hi, epsilon=config.epsilon,
+                                  hole_alpha=config.eta if skip else 0.0)
+
+
+def exclusion_masks(proposals, rng: int, mode: str) -> list[np.ndarray]:
+    """Q_j per view: M_j^1 for first-range candidates, M_j^1 | M_j^2 for second-range ones,
+    plus the view's unreliable pixels where ``verify_mask`` asks for them; only the unreliable
+    pixels with ``verify_mask="revealing"``."""
+    out = []
+    for p in proposals:
+        if mode == "revealing":
+            out.append(p.unreliable)
+            continue
+        q = p.mask1 if rng == 1 else (p.mask1 | p.mask2)
+        out.append(q if p.unreliable is None else (q | p.unreliable))
+    return out
+
+
+def range_masks(state, proposals) -> dict:
+    """``{1: Q^1, 2: Q^2}``: the exclusion masks of each range (:func:`exclusion_masks`) in the
+    mode of ``verify_mask`` (``"auto"``: ``"revealing"`` from eight views on)."""
+    mode = state.config.verify_mask
+    if mode == "auto":
+        mode = ("revealing" if state.num_views >= _REVEALING_MASK_MIN_VIEWS
+                else "proposals+revealing")
+    return {r: exclusion_masks(proposals, r, mode) for r in (1, 2)}
+
+
+def passes(total: Partial, config) -> bool:
+    """A test's verdict: score above ``min_score`` and, where ``min_relative_score`` asks for
+    it, a large enough share of the error it touches explained by the removal."""
+    if not total.score > config.min_score:
+        return False
+    return config.min_relative_score <= 0 or total.relative_score > config.min_relative_score
+
+
+def individual_tests(state, candidates: list, q: dict, verifier, renders) -> list:
+    """Score every candidate alone on its verification views; return those that pass.
+
+    Sets each candidate's ``verify_views``, ``scores["individual"]`` and ``reason``.
+    ``q[r][j]`` is the exclusion mask of view j for candidates of range r; ``renders`` the
+    round's :class:`~clearsplat.filter.exclusion.ExclusionRenders` (the bases).
+    """
+    config, views, own = state.config, state.views, state.own
+    views_of = {i: top_views(renders.seen, i, config.num_verify_views)
+                for i in range(state.num_views)}
+    all_keep = np.ones(state.n, dtype=bool)
+    totals = {c.index: Partial() for c in candidates}
+    for c in candidates:
+        c.verify_views = views_of[c.view]
+    # Batch per verifying view: every candidate that view j verifies, in one call.
+    for j in range(state.num_views):
+        # Candidates that view j does not see score 0 there: left out (and the view with them).
+        todo = [c for c in candidates if j in c.verify_views and c.gaussians.size
+                and views.sees(j, c.gaussians)]
+        if todo:
+            if config.verify_base == "full":
+                base_keep, base = all_keep, renders.full[j]
+            else:
+                base_keep, base = ~own[j], renders.excl[j]
+            for rng in (1, 2):
+                batch = [c for c in todo if c.range == rng]
+                parts = verifier.score_view(j, base_keep, base, [c.gaussians for c in batch],
+                                            q[rng][j])
+                for c, p in zip(batch, parts):
+                    totals[c.index].add(p)
+        state.report("individual", j + 1, state.num_views)
+    for c in candidates:
+        c.scores["individual"] = totals[c.index].score
+        if c.gaussians.size == 0:
+            c.reason = ("no Gaussians in region" if config.refine == "none"
+                        else "no Gaussians left: none survived refinement")
+        elif passes(totals[c.index], config):
+            c.reason = "passed individual test"
+        else:
+            c.reason = "rejected by individual test"
+    return [c for c in candidates if c.reason == "passed individual test"]
+
+
+def second_range_tests(state, passed: list, q: list, verifier, renders) -> None:
+    """Accept the first-range candidates in ``passed``; put the second-range ones through the
+    additional test, then the survivors together through the joint test.
+
+    ``passed`` are expanded candidates that passed their individual test; ``q[j]`` is view
+    j's exclusion mask M_j^1 | M_j^2 (and its unreliable pixels).
+    """
+    first = [c for c in passed if c.range == 1]
+    second = [c for c in passed if c.range == 2]
+    for c in first:
+        c.accepted, c.reason = True, "accepted (first range)"
+    if not second:
+        return
+    survivors = _additional_tests(state, second, q, verifier, renders)
+    if survivors:
+        _joint_test(state, first, survivors, q, verifier, renders)
+
+
+def _additional_tests(state, second: list, q: list, verifier, renders) -> list:
+    """Each second-range candidate's expansion removed from R_j^-j; return those that pass."""
+    views, own, v = state.views, state.own, state.num_views
+    totals = {c.index: Partial() for c in second}
+    for j in range(v):
+        # Candidates that view j does not see score 0 there: left out (and the view with them).
+        todo = [c for c in second if views.sees(j, c.expanded)]
+        if todo:
+            parts = verifier.score_view(j, ~own[j], renders.excl[j],
+                                        [c.expanded for c in todo], q[j])
+            for c, p in zip(todo, parts):
+                totals[c.index].add(p)
+        state.report("additional", j + 1, v)
+    survivors = []
+    for c in second:
+        c.scores["additional"] = totals[c.index].score
+        if passes(totals[c.index], state.config):
+            survivors.append(c)
+        else:
+            c.reason = "rejected by additional test"
+    return survivors
+
+
+def _joint_test(state, first: list, survivors: list, q: list, verifier, renders) -> None:
+    """All ``survivors`` removed at once, from a base without the accepted first range."""
+    config, views, own, v = state.config, state.views, state.own, state.num_views
+    removed_first = np.zeros(state.n, dtype=bool)
+    for c in first:
+        removed_first[c.expanded] = True
+    joint = np.unique(np.concatenate([c.expanded for c in survivors]))
+    jointly = state.mask(joint)
+    total = Partial()
+    for j in range(v):
+        if not views.sees(j, joint):
+            state.report("joint", j + 1, v)        # every term would be 0
+            continue
+        if config.joint_base == "full":
+            base_keep, start = ~removed_first, renders.full[j]
+        else:
+            base_keep, start = ~(removed_first | own[j]), renders.excl[j]
+        total.add(_joint_terms(verifier, views[j], j, base_keep, jointly, joint, start, q[j]))
+        state.report("joint", j + 1, v)
+    ok = passes(total, config)
+    for c in survivors:
+        c.scores["joint"] = total.score
+        c.accepted = ok
+        c.reason = "accepted (second range, joint test)" if ok else "rejected by joint test"
+
+
+def _joint_terms(verifier, pv, j: int, base_keep, jointly, joint, start, q) -> Partial:
+    """The joint removal's score terms on view j."""
+    if verifier.incremental:
+        # The score reads only the tiles the joint removal touches: composite the base and
+        # the base without the joint removal there, in one pass.
+        tiles = pv.tiles_touched(joint)
+        base, after = pv.render_pair(first=base_keep, keep=base_keep & ~jointly,
+                                     tiles=tiles, start=start)
+        return verifier.score_tiles(j, base, after, tiles, q)
+    base = pv.render(keep=base_keep)
+    (p,) = verifier.score_view(j, base_keep, base, [joint], q)
+    return p

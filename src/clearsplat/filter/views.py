@@ -42,6 +42,10 @@ class PreparedViews:
         Bytes the kept views may hold (None: no limit). One view is always kept, whatever
         its size.
 
+    skip_unseen : bool
+        :meth:`sees` leaves out the views a removal cannot change (False: every view is
+        visited, the full-render reference path).
+
     Attributes
     ----------
     prepared : int
@@ -55,8 +59,10 @@ class PreparedViews:
         Bytes the kept views held right after :meth:`prune` (0 before).
     """
 
-    def __init__(self, num_gaussians: int, cameras, make: Callable, *, budget: int | None):
+    def __init__(self, num_gaussians: int, cameras, make: Callable, *, budget: int | None,
+                 skip_unseen: bool = True):
         self.num_gaussians = int(num_gaussians)
+        self.skip_unseen = skip_unseen
         self.cameras = list(cameras)
         self._make = make
         self.budget = budget
@@ -135,6 +141,26 @@ class PreparedViews:
     def release(self) -> None:
         """Drop every kept view (the visibility bits stay)."""
         self._kept.clear()
+
+    def sees(self, j: int, gaussians) -> bool:
+        """Whether view ``j`` can be changed by removing ``gaussians`` (int indices or (N,)
+        bool): False only when its camera sees none of them (then every score term there is 0
+        and the view is left out without being prepared; counted in :attr:`skipped`). Always
+        True without ``skip_unseen``."""
+        if not self.skip_unseen:
+            return True
+        g = np.asarray(gaussians)
+        if self.sees_any(j, np.flatnonzero(g) if g.dtype == np.bool_ else g):
+            return True
+        self.skipped += 1
+        return False
+
+    def stats(self, *, derived: int) -> dict:
+        """The counters of :attr:`FilterResult.stats <clearsplat.filter.FilterResult.stats>`;
+        ``derived``: views a later round took from the round before."""
+        return {"views_prepared": self.prepared, "views_derived": derived,
+                "views_peak_bytes": self.peak_bytes, "views_skipped": self.skipped,
+                "views_pruned_bytes": self.pruned_bytes}
 
     def sees_any(self, i: int, gaussians: np.ndarray) -> bool:
         """Whether camera ``i`` sees any of ``gaussians`` (int indices), without preparing it.

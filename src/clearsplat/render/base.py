@@ -187,6 +187,30 @@ class _TiledView:
         rows, cols = self.grid
         return rows * cols
 
+    def tile_pixels(self, tiles) -> tuple[np.ndarray, np.ndarray]:
+        """Flat pixel indices of ``tiles`` in tile-major, row-major order, and which exist.
+
+        Parameters
+        ----------
+        tiles : (T,) int
+            Tile ids ``tile_row * grid[1] + tile_col``.
+
+        Returns
+        -------
+        flat, inside : (T * 16 * 16,) int64 and bool
+            ``flat`` is ``row * W + col``, 0 where the tile reaches past the image border
+            (``inside`` False there).
+        """
+        t = self.tile_size
+        height, width = self.camera.height, self.camera.width
+        ty, tx = np.divmod(np.asarray(tiles).astype(np.int64), self.grid[1])
+        yy, xx = np.mgrid[0:t, 0:t]
+        rows = ty[:, None, None] * t + yy[None]
+        cols = tx[:, None, None] * t + xx[None]
+        inside = ((rows < height) & (cols < width)).ravel()
+        flat = np.where(inside, (rows * width + cols).ravel(), 0)
+        return flat, inside
+
     def _check_tiles(self, tiles, field: str = "tiles") -> np.ndarray:
         t = np.asarray(tiles)
         if t.size == 0:

@@ -1,0 +1,149 @@
+"""The one interface between the filter's stages and the renderer.
+
+The stages never import a renderer. They ask the round's backend for
+
+- :meth:`FilterBackend.prepare_views`: one prepared view per input camera, as a *view set*
+  (``views[j]``, ``len(views)``, ``views.sees(j, gaussians)``, ``views.prune(floor)``,
+  ``views.release()``, ``views.stats(derived=...)``);
+- :meth:`FilterBackend.verifier`: the :class:`~clearsplat.filter.verify.Verifier` that scores
+  removals on those views;
+
+and everything else they need of the renderer goes through the methods of a prepared view,
+which both renderers implement with the same results and checks
+(:class:`clearsplat.render.PreparedView` and :class:`clearsplat.render.gsplat.GsplatView`):
+
+=====================================================  =========================================
+``render(keep=)``                                      a whole image of a subset
+``render_pair(keep=, first=, tiles=, start=)``         two subsets in one pass (R_i and R_i^-i)
+``rerender(base, keep=, tiles=)``                      ``base`` composited again in ``tiles``
+``rerender_tiles(keep=, removals=, base=)``            one tile patch per removal
+``tiles_touched(gaussians)``                           the tiles a removal can change
+``centres_inside()``                                   (N,) bool, centres inside the image
+``tile_pixels(tiles)``                                  flat pixel indices of tiles
+``contributions(mask, keep=)``                         blending weights at a region's pixels
+``camera``, ``tile_size``, ``grid``, ``num_visible``   the view's geometry
+=====================================================  =========================================
+
+:class:`NativeBackend` is the CPU rasterizer (``config.device == "cpu"``): views within a
+memory budget, incremental verification on tile patches, the views and renders of one round
+handed on to the next. :class:`DeviceBackend` is gsplat on a CUDA device: whole-image
+verification renders, nothing handed on. :func:`backend_for` picks one from the config; no
+other module of the filter decides which renderer answers.
+"""
+
+from __future__ import annotations
+
+from .._memory import available_memory, check_memory, estimate_filter_memory
+from .config import FilterConfig
+from .verify import Verifier
+from .views import PreparedViews
+
+__all__ = ["FilterBackend", "NativeBackend", "DeviceBackend", "backend_for"]
+
+
+class FilterBackend:
+    """What the filter's stages ask of a renderer (see the module docstring).
+
+    Attributes
+    ----------
+    incremental : bool
+        Verification re-composites only the tiles a removal touches, and leaves out the views
+        it cannot change.
+    prunes_views : bool
+        The views can be pruned to what later renders can reach (``config.prune_views``).
+    hands_on : bool
+        A round's views and renders can be handed to the next round (:class:`Carry
+        <clearsplat.filter.rounds.Carry>`).
+    """
+
+    incremental = False
+    prunes_views = False
+    hands_on = False
+
+    def __init__(self, config: FilterConfig):
+        self.config = config
+
+    def check_memory(self, scene, previous=None) -> None:
+        """Refuse a round that cannot fit in memory (before any work)."""
+
+    def prepare_views(self, scene, previous=None):
+        """One prepared view per input camera of ``scene``, as a view set, and the tiles per
+        view that ``previous`` (the round before) must composite again: ``(views, touched)``,
+        ``touched`` filled as views are read."""
+        raise NotImplementedError
+
+    def verifier(self, views, images: list, images_hi: list | None, *, epsilon: float,
+                 hole_alpha: float) -> Verifier:
+        """The scorer of removals on ``views`` against ``images`` (lower bounds when
+        ``images_hi`` are given)."""
+        return Verifier(views, images, epsilon=epsilon, incremental=self.incremental,
+                        hole_alpha=hole_alpha, images_hi=images_hi)
+
+
+class NativeBackend(FilterBackend):
+    """The native CPU rasterizer (:func:`clearsplat.render.prepare`)."""
+
+    def __init__(self, config: FilterConfig):
+        super().__init__(config)
+        self.incremental = bool(config.incremental)
+        self.prunes_views = bool(config.prune_views)
+        self.hands_on = self.incremental and not config.prune_views
+        self.budget = None if config.view_memory is None else int(config.view_memory * 1e9)
+
+    def check_memory(self, scene, previous=None) -> None:
+        available = None
+        if previous is not None:
+            # What the previous round hands on becomes this round's views as they are taken
+            # (and its renders are dropped view by view): count it as available.
+            free = available_memory()
+            available = None if free is None else free + previous.nbytes()
+        check_memory(estimate_filter_memory(len(scene), scene.cameras, view_budget=self.budget),
+                     available=available)
+
+    def prepare_views(self, scene, previous=None):
+        from ..render import prepare
+        threads = self.config.num_threads
+        touched: dict = {}      # view -> tiles the previous round's removals touched there
+
+        def make(i: int):
+            old = None if previous is None else previous.views.take(i)
+            if old is None:
+                return prepare(scene, scene.cameras[i], num_threads=threads)
+            touched[i] = old.tiles_touched(~previous.keep)
+            return old.restrict(previous.keep)
+
+        views = PreparedViews(len(scene), scene.cameras, make, budget=self.budget,
+                              skip_unseen=self.incremental)
+        return views, touched
+
+
+class DeviceViews(list):
+    """The view set of :class:`DeviceBackend`: every view held, every view visited."""
+
+    def sees(self, j: int, gaussians) -> bool:
+        return True
+
+    def prune(self, floor) -> None:
+        pass
+
+    def release(self) -> None:
+        pass
+
+    def stats(self, *, derived: int) -> dict:
+        return {}
+
+
+class DeviceBackend(FilterBackend):
+    """gsplat on a CUDA device (:func:`clearsplat.render.gsplat.prepare_gsplat_views`): one
+    upload of the Gaussians shared by the views; the host holds only images and masks, so
+    there is no memory check here."""
+
+    def prepare_views(self, scene, previous=None):
+        from ..render.gsplat import prepare_gsplat_views
+        return DeviceViews(prepare_gsplat_views(scene, scene.cameras,
+                                                device=self.config.device)), {}
+
+
+def backend_for(config: FilterConfig) -> FilterBackend:
+    """The backend of ``config.device``: native on ``"cpu"``, gsplat on a CUDA device."""
+    return NativeBackend(config) if config.device == "cpu" else DeviceBackend(config)

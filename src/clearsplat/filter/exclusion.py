@@ -1,0 +1,77 @@
+"""Exclusion renders: each input camera rendered with and without its own Gaussians.
+
+Paper, "Distractor Proposal": R_i renders every Gaussian from camera i, R_i^-i every Gaussian
+but those predicted from view i. Both come from one compositing pass per view
+(``render_pair``). A later round takes the round before's renders and composites again only
+the tiles its removals touched; elsewhere they are unchanged, so the result is exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ExclusionRenders", "exclusion_renders"]
+
+
+@dataclass(eq=False)
+class ExclusionRenders:
+    """The renders of every input camera.
+
+    Attributes
+    ----------
+    full : list of RenderResult
+        R_i: every Gaussian of the round, from camera i ((H, W, 3) rgb, (H, W) alpha, depth).
+    excl : list of RenderResult
+        R_i^-i: without the Gaussians of view i.
+    seen : (V, V) int64
+        ``seen[j, v]``: how many centres of view v's Gaussians camera j sees inside its image
+        (the choice of verification views V_i).
+    any_visible : bool
+        Whether any Gaussian is in front of any camera.
+    """
+
+    full: list
+    excl: list
+    seen: np.ndarray
+    any_visible: bool
+
+
+def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
+    """R_i and R_i^-i of every view of ``state.views``, and the counts for V_i.
+
+    ``touched``: per view taken from ``previous`` (the round before), the tiles its removals
+    touched (filled as the views are read); there only is anything composited again.
+    """
+    scene, views, own = state.scene, state.views, state.own
+    seen = np.zeros((scene.num_views, scene.num_views), dtype=np.int64)
+    full, excl = [], []
+    any_visible = False
+    for i in range(scene.num_views):
+        pv = views[i]
+        state.lap("prepare")
+        any_visible |= pv.num_visible > 0
+        seen[i] = np.bincount(scene.view_id[pv.centres_inside()], minlength=scene.num_views)
+        if i in touched:    # the previous round's renders, where its removals changed nothing
+            r_full, r_excl = _update_pair(pv, own[i], touched[i], previous, i)
+        else:
+            r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
+        full.append(r_full)
+        excl.append(r_excl)
+        state.lap("exclusion_renders")
+        state.report("render", i + 1, scene.num_views)
+    return ExclusionRenders(full, excl, seen, bool(any_visible))
+
+
+def _update_pair(pv, own, tiles, previous, i: int):
+    """View ``i``'s R_i and R_i^-i from the previous round's, composited again in ``tiles``
+    (which the previous round's removals touched); the previous renders are dropped."""
+    r_full, r_excl = pv.render_pair(keep=~own, tiles=tiles, start=previous.full[i])
+    flat, inside = pv.tile_pixels(tiles)
+    outside = np.ones(r_excl.alpha.shape, dtype=bool)
+    outside.reshape(-1)[flat[inside]] = False
+    for a, b in zip(r_excl, previous.excl[i]):
+        a[outside] = b[outside]
+    previous.full[i] = previous.excl[i] = None     # no longer needed
+    return r_full, r_excl

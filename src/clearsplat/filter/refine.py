@@ -1,0 +1,321 @@
+"""Refinement: keep of each candidate only the Gaussians that stand in front of the scene.
+
+Paper, "Distractor Proposal", refinement of the regions: a Gaussian of view i belongs to a
+distractor only where removing view i's Gaussians reveals a farther surface. The paper tests
+this per patch; :func:`revealing_gaussians` tests it per Gaussian against a reference depth.
+The reference is R_i^-i (``refine="depth"``) or, by default, the *static reference*
+(``refine="static-depth"``): R_i^-i without any proposed Gaussian, so that another view's
+distractor in front of view i's cannot hide it (:func:`static_reference`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._threads import thread_map
+from ..scene import Scene
+from .association import ViewIndex
+from .masks import label8, touched_components
+from .robust import misregistration, tolerant_reference
+
+__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "join_touching", "member_pixels",
+           "pixels_of"]
+
+#: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
+#: counts as a hole, and the plain exclusion render's depth is used instead.
+_STATIC_MIN_ALPHA = 0.1
+#: The colour test of ``refine_color`` needs the static reference this opaque at the pixel.
+_COLOR_MIN_ALPHA = 0.9
+#: With ``align_scale``: "in front" means beyond this many robust standard deviations of the
+#: view's depth ratio to the reference.
+_SPREAD_FACTOR = 2.5
+
+
+def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
+                        margin: float, reference_rgbs: list[np.ndarray] | None = None,
+                        color_threshold: float | None = None, images: list | None = None,
+                        align_scale: bool = False,
+                        reference_rgbs_hi: list[np.ndarray] | None = None,
+                        scale_reach: int = 0, color_grow: float | None = None,
+                        workers: int | None = None) -> np.ndarray:
+    """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
+
+    The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
+    farther surface. This applies it per Gaussian: a Gaussian of view i qualifies when its
+    camera-i depth is below ``(1 - margin)`` times the reference depth at its pixel (see
+    :func:`member_pixels`). Where the reference shows nothing, nothing is revealed and it does
+    not qualify.
+
+    Parameters
+    ----------
+    reference_depths : list of (H, W) float
+        Per input view, the expected depth of a render without that view's Gaussians (0 where
+        empty).
+    margin : float
+        Relative depth gap that counts as "in front".
+    reference_rgbs : list of (H, W, 3) float, optional
+        Colours of the same reference renders; NaN where they should not be used.
+    color_threshold : float, optional
+        With ``reference_rgbs``: a Gaussian also qualifies when its view's input colour differs
+        from the reference colour at its pixel by more than this (L1 over RGB) and it does not
+        lie behind the reference surface (it touches it: the foot of an object on the floor).
+    images : list of (H, W, 3) float, optional
+        The input colours for the colour test (default: ``scene.images``).
+    align_scale : bool
+        Divide each view's depths by their median ratio to the reference depth first, and widen
+        ``margin`` to 2.5 robust standard deviations of that ratio where the view's depth is
+        noisier (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own
+        depth scale and noise (``FilterConfig.depth_scale_align``).
+    reference_rgbs_hi : list of (H, W, 3) float, optional
+        Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
+        the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
+    scale_reach : int
+        With ``align_scale``: 0 divides each view's depths by one scale; k > 0 by the median
+        ratio within k 16-pixel cells around each Gaussian
+        (:func:`clearsplat.filter.robust.local_depth_scales`, ``FilterConfig.depth_scale_reach``).
+    color_grow : float, optional
+        With ``color_threshold``: a lower threshold for the same colour test, applied with
+        hysteresis. A Gaussian that touches the reference and differs from it by more than this
+        also qualifies when its pixel is 8-connected through such pixels to the pixel of one
+        that qualifies on its own (:func:`join_touching`, ``FilterConfig.refine_color_grow``).
+    workers : int, optional
+        Threads, one view at a time each (default: the cores, at most ``OMP_NUM_THREADS``); the
+        result does not depend on it.
+    """
+    from .robust import local_depth_scales, view_depth_scales
+    images = scene.images if images is None else images
+    # Camera depths and pixels first, in this thread (matrix products, left to BLAS as they
+    # are, whose own threads must not depend on ours).
+    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
+              if members.size else None for view, members in enumerate(index.members)]
+    pixels = [member_pixels(scene, index, view) if members.size else None
+              for view, members in enumerate(index.members)]
+
+    def view_front(view: int) -> np.ndarray | None:
+        members = index.members[view]
+        if members.size == 0:
+            return None
+        z, pix = depths[view], pixels[view]
+        behind = np.zeros(members.size)
+        valid = pix >= 0
+        behind[valid] = reference_depths[view].ravel()[pix[valid]]
+        view_margin = margin
+        if align_scale and scale_reach > 0:
+            cam = scene.cameras[view]
+            scale, spread = local_depth_scales(z, behind, pix, cam.height, cam.width,
+                                               reach=scale_reach)
+            z = z / scale
+            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        elif align_scale:
+            scale, spread = view_depth_scales([z], [behind])[0]
+            z = z / scale
+            # "In front" beyond this view's own depth noise, not only beyond the fixed margin.
+            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
+        if color_threshold is not None and reference_rgbs is not None:
+            image = images[view].reshape(-1, 3)
+            ref = reference_rgbs[view].reshape(-1, 3)
+            differ = np.zeros(members.size, dtype=bool)
+            with np.errstate(invalid="ignore"):
+                if reference_rgbs_hi is None:
+                    diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
+                else:
+                    x = image[pix[valid]]
+                    hi = reference_rgbs_hi[view].reshape(-1, 3)[pix[valid]]
+                    diff = (np.maximum(ref[pix[valid]] - x, 0) + np.maximum(x - hi, 0)).sum(-1)
+            differ[valid] = diff > color_threshold       # False where the reference is NaN
+            touching = (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
+            front |= differ & touching
+            if color_grow is not None and color_grow < color_threshold:
+                weak = np.zeros(members.size, dtype=bool)
+                weak[valid] = diff > color_grow
+                cam = scene.cameras[view]
+                front |= join_touching(front, weak & touching & ~front, pix,
+                                       cam.height, cam.width)
+        return front
+
+    out = np.zeros(len(scene), dtype=bool)
+    # The views are independent (each writes its own Gaussians): one per core.
+    fronts = thread_map(view_front, range(scene.num_views), workers=workers)
+    for members, front in zip(index.members, fronts):
+        if front is not None:
+            out[members] = front
+    return out
+
+
+def join_touching(seeds: np.ndarray, weak: np.ndarray, pixels: np.ndarray, height: int,
+                  width: int) -> np.ndarray:
+    """The ``weak`` Gaussians joined to ``seeds`` through their pixels (hysteresis), (M,) bool.
+
+    Parameters
+    ----------
+    seeds, weak : (M,) bool
+        Over one view's Gaussians: those that qualify on their own, and those that qualify only
+        when joined to them.
+    pixels : (M,) int
+        Each Gaussian's pixel (row-major index into the (height, width) image; negative: none).
+    height, width : int
+
+    Returns
+    -------
+    (M,) bool
+        The weak Gaussians whose pixel lies in an 8-connected component of the pixels of
+        seed and weak Gaussians that holds a seed pixel.
+    """
+    joined = np.zeros(weak.shape, dtype=bool)
+    seeds = seeds & (pixels >= 0)
+    weak = weak & (pixels >= 0)
+    if not (seeds.any() and weak.any()):
+        return joined
+    seed_px = np.zeros(height * width, dtype=bool)
+    seed_px[pixels[seeds]] = True
+    either = seed_px.copy()
+    either[pixels[weak]] = True
+    labels = label8(either.reshape(height, width))[0].ravel()
+    joined[weak] = touched_components(labels, seed_px)[pixels[weak]]
+    return joined
+
+
+
+
+@dataclass(eq=False)
+class Refinement:
+    """What refinement found.
+
+    Attributes
+    ----------
+    revealing : (N,) bool or None
+        The Gaussians in front of the reference: the only ones a candidate keeps (None with
+        ``refine="none"``).
+    front_pixels : list of (H, W) bool, or None
+        Per view, the pixels holding one of its ``revealing`` Gaussians (where verification
+        or ``expand_connected`` needs them; None otherwise).
+    """
+
+    revealing: np.ndarray | None
+    front_pixels: list | None = None
+
+
+def refine(state, renders, images: list, raw: list) -> Refinement:
+    """The Gaussians that may belong to a candidate, and their pixels.
+
+    Parameters
+    ----------
+    state : RoundState
+    renders : ExclusionRenders
+    images : list of (H, W, 3) float32
+        The input images the comparisons use.
+    raw : list of (M_k,) int64
+        Every candidate's Gaussians C_k before refinement (the proposed Gaussians).
+    """
+    config = state.config
+    revealing = _revealing(state, renders.excl, images, raw)
+    front = None
+    if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
+        front = [pixels_of(state.scene, state.index, v, revealing)
+                 for v in range(state.num_views)]
+    return Refinement(revealing, front)
+
+
+def _revealing(state, excl: list, images: list, raw: list) -> np.ndarray | None:
+    """(N,) bool: the Gaussians in front of the reference of ``config.refine``."""
+    config = state.config
+    if config.refine == "depth":
+        return revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
+                                   margin=config.refine_margin,
+                                   align_scale=config.depth_scale_align,
+                                   scale_reach=config.depth_scale_reach,
+                                   workers=config.num_threads)
+    if config.refine != "static-depth":
+        return None
+    proposed = np.zeros(state.n, dtype=bool)
+    for g in raw:
+        proposed[g] = True
+    radii = config.refine_tolerance
+    if radii == "auto":   # each view's measured misregistration with the others
+        radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
+                 for i in range(state.num_views)]
+    revealing = None
+    for _ in range(config.refine_passes):
+        # Each later pass (``refine_passes``) builds the static reference without only the
+        # proposed Gaussians that the previous pass kept, so that static content proposed
+        # by some view (around another view's distractor) stays in the reference.
+        depths, rgbs = static_reference(state, excl, proposed)
+        revealing = _in_front(state, depths, rgbs, images, radii)
+        proposed &= revealing
+    return revealing
+
+
+def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, list]:
+    """Per view i, the depth and colour of R_i^-i without the ``proposed`` Gaussians ((N,)
+    bool): ``(depths, rgbs)``, (H, W) and (H, W, 3) each. Where that leaves a hole the depth
+    falls back to R_i^-i's; colours are NaN where the other views do not cover the pixel."""
+    views, own = state.views, state.own
+    reference, reference_rgb = [], []
+    for i in range(state.num_views):
+        others = proposed & ~own[i]
+        if views.sees(i, others):
+            pv = views[i]
+            static = pv.rerender(excl[i], keep=~(own[i] | proposed),
+                                 tiles=pv.tiles_touched(others))
+        else:   # nothing proposed in this view: the reference is R_i^-i itself
+            static = excl[i]
+        # Where the proposals of the other views leave a hole, fall back to R_i^-i.
+        solid = static.alpha > _STATIC_MIN_ALPHA
+        reference.append(np.where(solid, static.depth, excl[i].depth))
+        # Colours only where the other views cover the pixel fully: a partly covered pixel
+        # (the edge of what they see) mixes in the background and proves nothing.
+        covered = static.alpha >= _COLOR_MIN_ALPHA
+        reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
+    return reference, reference_rgb
+
+
+def _in_front(state, reference: list, reference_rgb: list, images: list, radii) -> np.ndarray:
+    """:func:`revealing_gaussians` against the static reference, widened by ``radii``
+    (``refine_tolerance``) where set."""
+    config = state.config
+    reference_hi = None
+    if radii != 0:
+        nearest, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
+                                                                  radii)
+        if config.refine_tolerance_depth:
+            reference = nearest
+    return revealing_gaussians(state.scene, state.index, reference, margin=config.refine_margin,
+                               reference_rgbs=reference_rgb,
+                               color_threshold=config.refine_color, images=images,
+                               align_scale=config.depth_scale_align,
+                               reference_rgbs_hi=reference_hi,
+                               scale_reach=config.depth_scale_reach,
+                               color_grow=config.refine_color_grow,
+                               workers=config.num_threads)
+
+
+def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
+    """Flat pixel of each Gaussian of ``view`` in that view's image, (M,) int64, -1 if none.
+
+    ``pixel_id`` where the model is pixel-aligned, otherwise the pixel its centre projects to.
+    """
+    members = index.members[view]
+    pix = index.pixels[view].copy()
+    loose = pix < 0
+    if loose.any():
+        cam = scene.cameras[view]
+        uv, z = cam.project(scene.gaussians.means[members[loose]])
+        with np.errstate(invalid="ignore"):
+            col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
+            row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
+        ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+        pix[loose] = np.where(ok, row * cam.width + col, -1).astype(np.int64)
+    return pix
+
+
+def pixels_of(scene: Scene, index: ViewIndex, view: int, selected: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of ``view`` holding one of its ``selected`` ((N,) bool) Gaussians."""
+    cam = scene.cameras[view]
+    out = np.zeros(cam.height * cam.width, dtype=bool)
+    pix = member_pixels(scene, index, view)
+    pix = pix[selected[index.members[view]] & (pix >= 0)]
+    out[pix] = True
+    return out.reshape(cam.height, cam.width)

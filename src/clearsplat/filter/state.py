@@ -1,0 +1,109 @@
+"""What every stage of one round reads: the round's scene, options and views.
+
+A round of the filter (:func:`clearsplat.filter.pipeline.run_round`) builds one
+:class:`RoundState` and hands it to each stage beside that stage's own inputs; the stages
+return their outputs (renders, proposals, masks, candidates) instead of storing them here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..scene import Scene
+from .association import ViewIndex
+from .backend import FilterBackend
+from .config import FilterConfig
+
+__all__ = ["RoundState", "Progress"]
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(eq=False)
+class RoundState:
+    """The constants of one round of the procedure.
+
+    Attributes
+    ----------
+    scene : Scene
+        The round's Gaussians (the first round: the whole prediction; a later one: what the
+        rounds before kept), the input cameras and images.
+    config : FilterConfig
+    backend : FilterBackend
+        The renderer the stages go through.
+    index : ViewIndex
+        Per view, its Gaussians and their pixels.
+    own : list of (N,) bool
+        Per view i, the Gaussians predicted from it (left out of R_i^-i).
+    tau1, tau2 : float
+        The similarity thresholds (the config's, else the extractor's calibration).
+    views : view set
+        One prepared view per input camera (:meth:`FilterBackend.prepare_views`).
+    report : callable(stage, done, total)
+        Progress.
+    timings : dict of str to float
+        Seconds per stage and sub-stage (``"proposal.features"``, ...).
+    """
+
+    scene: Scene
+    config: FilterConfig
+    backend: FilterBackend
+    index: ViewIndex
+    own: list
+    tau1: float
+    tau2: float
+    report: Progress
+    views: object = None
+    timings: dict = field(default_factory=lambda: {"proposal": 0.0, "verification": 0.0})
+    _stage: str = "proposal"
+    _start: float = field(default_factory=time.perf_counter)
+    _last: float = field(default_factory=time.perf_counter)
+
+    @classmethod
+    def begin(cls, scene: Scene, config: FilterConfig, backend: FilterBackend, extractor,
+              report: Progress) -> "RoundState":
+        """The state of a round on ``scene``, its ``"proposal"`` stage timed from now."""
+        index = ViewIndex(scene)
+        n = len(scene)
+        state = cls(scene, config, backend, index,
+                    own=[index.mask(i, n) for i in range(scene.num_views)],
+                    tau1=extractor.tau1 if config.tau1 is None else config.tau1,
+                    tau2=extractor.tau2 if config.tau2 is None else config.tau2,
+                    report=report)
+        state.stage("proposal")
+        return state
+
+    @property
+    def n(self) -> int:
+        """Gaussians in the round."""
+        return len(self.scene)
+
+    @property
+    def num_views(self) -> int:
+        return self.scene.num_views
+
+    def stage(self, name: str) -> None:
+        """Start timing stage ``name`` (``"proposal"`` or ``"verification"``)."""
+        self._stage = name
+        self._start = self._last = time.perf_counter()
+
+    def end_stage(self) -> None:
+        """Record the seconds of the stage started last."""
+        self.timings[self._stage] = time.perf_counter() - self._start
+
+    def lap(self, step: str) -> None:
+        """Add the seconds since the last lap to ``timings["<stage>.<step>"]``."""
+        now = time.perf_counter()
+        key = f"{self._stage}.{step}"
+        self.timings[key] = self.timings.get(key, 0.0) + now - self._last
+        self._last = now
+
+    def mask(self, gaussians) -> np.ndarray:
+        """(N,) bool of int indices ``gaussians``."""
+        out = np.zeros(self.n, dtype=bool)
+        out[gaussians] = True
+        return out
