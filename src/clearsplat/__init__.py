@@ -12,7 +12,9 @@ from .render import (Contributions, PreparedView, RenderResult, TilePatch, contr
                      prepare, render, render_batch)
 from .scene import Gaussians, RenderSettings, Scene
 
-__version__ = "0.1.0"
+#: The one place the version is written: pyproject.toml reads it (scikit-build-core's regex
+#: provider), CHANGELOG.md's newest section names it (tests/test_release.py).
+__version__ = "0.2.0"
 
 __all__ = [
     "Camera", "ClearsplatError", "Gaussians", "Scene", "RenderSettings", "__version__",
