@@ -68,3 +68,12 @@ def test_pyproject_reads_the_version_from_the_package():
     written = re.findall(r'^__version__ = "([^"]+)"$', source.read_text(), re.M)
     assert written == [clearsplat.__version__]
 
+
+def test_wheel_builds_test_the_demo_and_run_on_tags():
+    meta = _pyproject()
+    cibw = meta["tool"]["cibuildwheel"]
+    assert "clearsplat demo --views 4" in cibw["test-command"]
+    assert {"linux", "macos", "windows"} <= set(cibw)
+    workflow = (ROOT / ".github" / "workflows" / "wheels.yml").read_text()
+    assert 'tags: ["v*"]' in workflow and "pypa/cibuildwheel@" in workflow
+    assert "python -m build --sdist" in workflow
