@@ -13,9 +13,17 @@ import pytest
 import clearsplat
 from clearsplat.cli import main
 from clearsplat.errors import ClearsplatError
-from clearsplat.review import (CANDIDATES_FILE, REMOVED_FILE, CandidateSets, edit_command,
-                               edit_removed, load_filter_output, load_full_scene,
-                               read_candidates, write_candidates)
+from clearsplat.review import (
+    CANDIDATES_FILE,
+    REMOVED_FILE,
+    CandidateSets,
+    edit_command,
+    edit_removed,
+    load_filter_output,
+    load_full_scene,
+    read_candidates,
+    write_candidates,
+)
 
 
 def run(argv, capsys):
@@ -217,7 +225,7 @@ def test_edit_removed_is_the_union_of_the_accepted():
 # ------------------------------------------------------------------------------------------------
 def test_reject_restores_what_no_other_accepted_candidate_removes(crafted, scene_dir, tmp_path,
                                                                    capsys):
-    out, cands, n = crafted
+    out, _, n = crafted
     before = tree(out)
     e0, e1 = cands[0].expanded, cands[1].expanded
     code, stdout, err = run(["edit", out, "--reject", "1", "--out", tmp_path / "e"], capsys)
@@ -263,8 +271,7 @@ def test_accept_removes_its_expanded_gaussians(crafted, scene_dir, tmp_path, cap
 
 def test_edits_compose_and_keep_the_full_record(crafted, scene_dir, tmp_path, capsys):
     out, cands, n = crafted
-    e0, e1, e3, g2 = (cands[0].expanded, cands[1].expanded, cands[3].expanded,
-                      cands[2].gaussians)
+    e3, g2 = cands[3].expanded, cands[2].gaussians
     assert run(["edit", out, "--reject", "0", "--accept", "2", "--out", tmp_path / "one"],
                capsys)[0] == 0
     assert run(["edit", tmp_path / "one", "--accept", "3", "--reject", "1",
@@ -299,7 +306,7 @@ def test_edits_compose_and_keep_the_full_record(crafted, scene_dir, tmp_path, ca
 
 def test_edit_output_is_a_bundle_and_keeps_all_on_request(crafted, scene_dir, tmp_path,
                                                          capsys):
-    out, cands, n = crafted
+    out, _, n = crafted
     code, _, err = run(["edit", out, "--reject", "1", "--out", tmp_path / "deep" / "k",
                         "--keep-all"], capsys)
     assert code == 0, err
@@ -368,8 +375,7 @@ def test_unknown_or_bad_ids(crafted, tmp_path, capsys):
     assert tree(out) == before
 
 
-def test_not_a_filter_output(crafted, scene_dir, tmp_path, capsys):
-    out, _, _ = crafted
+def test_not_a_filter_output(scene_dir, tmp_path, capsys):
     new = tmp_path / "e"
     _refused(["edit", scene_dir, "--reject", "0", "--out", new], capsys, tmp_path,
              "summary.json", "not found", "'clearsplat filter'")

@@ -29,9 +29,20 @@ import numpy as np
 
 from .errors import ClearsplatError
 
-__all__ = ["CANDIDATES_FILE", "REMOVED_FILE", "CandidateSets", "write_candidates",
-           "read_candidates", "FilterOutput", "load_filter_output", "load_full_scene",
-           "edit_removed", "edit_filter_output", "edit_command", "parse_ids"]
+__all__ = [
+    "CANDIDATES_FILE",
+    "REMOVED_FILE",
+    "CandidateSets",
+    "FilterOutput",
+    "edit_command",
+    "edit_filter_output",
+    "edit_removed",
+    "load_filter_output",
+    "load_full_scene",
+    "parse_ids",
+    "read_candidates",
+    "write_candidates",
+]
 
 #: Per candidate its Gaussians, expanded Gaussians and pixel region (NumPy ``.npz``).
 CANDIDATES_FILE = "candidates.npz"
@@ -96,7 +107,7 @@ class CandidateSets:
         return int(self.view.shape[0])
 
     @classmethod
-    def from_candidates(cls, candidates, *, num_gaussians: int) -> "CandidateSets":
+    def from_candidates(cls, candidates, *, num_gaussians: int) -> CandidateSets:
         """Pack a list of :class:`clearsplat.filter.Candidate` (in index order)."""
         n = int(num_gaussians)
         dtype = np.int32 if n < 2 ** 31 else np.int64
