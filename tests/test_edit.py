@@ -225,7 +225,7 @@ def test_edit_removed_is_the_union_of_the_accepted():
 # ------------------------------------------------------------------------------------------------
 def test_reject_restores_what_no_other_accepted_candidate_removes(crafted, scene_dir, tmp_path,
                                                                    capsys):
-    out, _, n = crafted
+    out, cands, n = crafted
     before = tree(out)
     e0, e1 = cands[0].expanded, cands[1].expanded
     code, stdout, err = run(["edit", out, "--reject", "1", "--out", tmp_path / "e"], capsys)
