@@ -4,6 +4,8 @@ Usage::
 
     python benchmarks/missed_distractors.py --realism plain --family object --views 16
     python benchmarks/missed_distractors.py --views 16 --config default+rounds=1 --view 14
+    python benchmarks/missed_distractors.py --family street --views 32 --occlusion high \
+        --config default+neighbours=4
 
 One scene of the realism stand-in (``clearsplat.synth.realism``; seed, resolution and config
 as given) and its distractor ground truth. Every distractor Gaussian the filter keeps is put
@@ -66,13 +68,15 @@ def main(argv=None) -> int:
     p.add_argument("--views", type=int, default=16)
     p.add_argument("--resolution", default="128x224", help="HxW")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--occlusion", default="medium", help="low, medium or high (make_world)")
     p.add_argument("--config", default="default", help="PRESET[+key=value...]")
     p.add_argument("--view", type=int, action="append", default=[],
                    help="list this view's candidates (repeatable)")
     args = p.parse_args(argv)
     h, w = (int(x) for x in args.resolution.lower().split("x"))
     config = parse_config(args.config)
-    world = make_world(args.family, num_views=args.views, seed=args.seed, height=h, width=w)
+    world = make_world(args.family, num_views=args.views, seed=args.seed, height=h, width=w,
+                       occlusion=args.occlusion)
     if parse_realism(args.realism):
         scene, truth = realistic_reconstruction(world, args.realism, seed=args.seed)
     else:       # the plain stand-in, as clearsplat bench builds it

@@ -34,6 +34,7 @@ other module of the filter decides which renderer answers.
 from __future__ import annotations
 
 from .._memory import available_memory, check_memory, estimate_filter_memory
+from ..errors import ClearsplatError
 from .config import FilterConfig
 from .verify import Verifier
 from .views import PreparedViews
@@ -66,10 +67,12 @@ class FilterBackend:
     def check_memory(self, scene, previous=None) -> None:
         """Refuse a round that cannot fit in memory (before any work)."""
 
-    def prepare_views(self, scene, previous=None):
+    def prepare_views(self, scene, previous=None, hoods=None):
         """One prepared view per input camera of ``scene``, as a view set, and the tiles per
         view that ``previous`` (the round before) must composite again: ``(views, touched)``,
-        ``touched`` filled as views are read."""
+        ``touched`` filled as views are read. ``hoods``: per camera j, the (V,) bool views
+        whose Gaussians its view holds (:func:`~clearsplat.filter.neighbours.neighbourhoods`;
+        None: all)."""
         raise NotImplementedError
 
     def verifier(self, views, images: list, images_hi: list | None, *, epsilon: float,
@@ -100,7 +103,7 @@ class NativeBackend(FilterBackend):
         check_memory(estimate_filter_memory(len(scene), scene.cameras, view_budget=self.budget),
                      available=available)
 
-    def prepare_views(self, scene, previous=None):
+    def prepare_views(self, scene, previous=None, hoods=None):
         from ..render import prepare
         threads = self.config.num_threads
         touched: dict = {}      # view -> tiles the previous round's removals touched there
@@ -108,7 +111,8 @@ class NativeBackend(FilterBackend):
         def make(i: int):
             old = None if previous is None else previous.views.take(i)
             if old is None:
-                return prepare(scene, scene.cameras[i], num_threads=threads)
+                keep = None if hoods is None else hoods[i][scene.view_id]
+                return prepare(scene, scene.cameras[i], keep=keep, num_threads=threads)
             touched[i] = old.tiles_touched(~previous.keep)
             return old.restrict(previous.keep)
 
@@ -138,7 +142,10 @@ class DeviceBackend(FilterBackend):
     upload of the Gaussians shared by the views; the host holds only images and masks, so
     there is no memory check here."""
 
-    def prepare_views(self, scene, previous=None):
+    def prepare_views(self, scene, previous=None, hoods=None):
+        if hoods is not None:
+            raise ClearsplatError("bounded neighbourhoods run on the CPU for now: set "
+                                  "neighbours to null with a CUDA device", field="neighbours")
         from ..render.gsplat import prepare_gsplat_views
         return DeviceViews(prepare_gsplat_views(scene, scene.cameras,
                                                 device=self.config.device)), {}

@@ -287,6 +287,13 @@ class FilterConfig:
         0.58 dB at 16 views, 0.18 dB at 8 and 0.02 dB at 4, and at 8 views it finds most of
         the passers-by that ``min_relative_score`` rejects in the first round, once the other
         views' passers-by that their removal uncovered are gone). 1: the paper (a single run).
+    neighbours : int or None
+        Bounded neighbourhoods: each input camera's renders (R_i, R_i^-i, the static reference
+        and verification's bases) hold only the Gaussians of the ``neighbours`` other views
+        that share the most of its field of view, and of the views it verifies
+        (:mod:`clearsplat.filter.neighbours`); the work then grows with views times
+        ``neighbours`` instead of the square of the views. Exact (the same output as None)
+        while the scene has at most ``neighbours + 1`` views. None: every view, the paper.
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -329,6 +336,7 @@ class FilterConfig:
     refine_tolerance_depth: bool = False
     depth_scale_reach: int = 0
     rounds: int | str = "auto"
+    neighbours: int | None = None
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -428,6 +436,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine_tolerance_depth": FieldSpec("bool"),
     "depth_scale_reach": FieldSpec("integer", 0),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
+    "neighbours": FieldSpec("integer", 1, optional=True),
 }
 
 

@@ -33,6 +33,7 @@ from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
 from .refine import refine
+from .neighbours import neighbourhoods
 from .result import Candidate, FilterResult
 from .robust import aligned_images
 from .rounds import Carry, in_round, merge_round
@@ -88,7 +89,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     rounds = config.rounds
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
-    result, carry = run_round(scene, config, extractor, backend, report, hold=rounds > 1)
+    hoods = neighbourhoods(scene, config.neighbours, config.num_verify_views)
+    result, carry = run_round(scene, config, extractor, backend, report, hold=rounds > 1,
+                              hoods=hoods)
     previous = None
     try:
         for round_ in range(2, rounds + 1):
@@ -98,7 +101,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             previous, carry = carry, None
             later, carry = run_round(scene.subset(kept), config, extractor, backend,
                                      in_round(report, round_), previous=previous,
-                                     hold=round_ < rounds)
+                                     hold=round_ < rounds, hoods=hoods)
             previous = None             # spent (the round released it)
             merge_round(result, later, kept, round_)
             if later.keep.all():        # nothing new: a further round would find the same
@@ -111,17 +114,18 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
 
 def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Progress, *,
-              previous: Carry | None = None, hold: bool = False
+              previous: Carry | None = None, hold: bool = False, hoods: list | None = None
               ) -> tuple[FilterResult, Carry | None]:
     """One run of the procedure on ``scene`` (at least two views and one Gaussian).
 
     ``previous``: what the round before handed on, ``scene`` being its kept Gaussians.
     ``hold``: hand this round's views and renders on (where the backend can) instead of
-    releasing them. Returns the round's result and what it hands on (or None).
+    releasing them. ``hoods``: per camera, the views its renders hold (``neighbours``; None:
+    all). Returns the round's result and what it hands on (or None).
     """
     backend.check_memory(scene, previous)
     state = RoundState.begin(scene, config, backend, extractor, report)     # times "proposal"
-    state.views, touched = backend.prepare_views(scene, previous)
+    state.views, touched = backend.prepare_views(scene, previous, hoods)
     renders = exclusion_renders(state, touched, previous)                 # R_i, R_i^-i
     if previous is not None:    # every view taken or prepared again: drop what is left
         previous.release()

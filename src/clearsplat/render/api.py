@@ -22,7 +22,8 @@ from .native import PreparedView, check_threads, prepare_view
 __all__ = ["render", "render_batch", "contributions", "prepare"]
 
 
-def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | None = None,
+def prepare(scene, camera: Camera, *, keep=None, near: float = 0.01,
+            num_threads: int | None = None,
             settings: RenderSettings | None = None) -> PreparedView:
     """Project, bin and depth-sort a scene for one camera, for repeated (subset) renders.
 
@@ -30,6 +31,9 @@ def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | Non
     ----------
     scene : Scene or Gaussians
     camera : Camera
+    keep : (N,) bool, optional
+        Prepare only these Gaussians: every render of the view then holds at most them (its
+        ``keep`` masks still index the whole scene). None: all.
     near : float
         Gaussians with camera z below this are culled.
     num_threads : int, optional
@@ -44,7 +48,7 @@ def prepare(scene, camera: Camera, *, near: float = 0.01, num_threads: int | Non
     """
     g = _gaussians(scene)
     _check_gaussians(g)
-    return prepare_view(g, _check_camera(camera), None, _check_near(near),
+    return prepare_view(g, _check_camera(camera), _check_keep(keep, len(g)), _check_near(near),
                         check_threads(num_threads), _check_settings(settings, scene))
 
 

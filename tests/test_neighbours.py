@@ -1,0 +1,127 @@
+"""Bounded neighbourhoods (``FilterConfig.neighbours``): which views each camera's renders
+hold, that they hold exactly those, and that the filter is the exact one while every view is a
+neighbour."""
+
+import numpy as np
+import pytest
+
+from clearsplat.errors import ClearsplatError
+from clearsplat.features import get_extractor
+from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter.neighbours import covisibility, neighbourhoods
+from clearsplat.render import prepare, render
+from clearsplat.synth.realism import realistic_reconstruction
+from clearsplat.synth.worlds import make_world
+
+
+@pytest.fixture(scope="module")
+def street():
+    world = make_world("street", num_views=8, seed=3, height=48, width=80)
+    scene, truth = realistic_reconstruction(world, "plain", seed=3)
+    return scene, truth
+
+
+def _covisibility_by_loop(scene, samples):
+    """Slow reference: every sampled centre of every view projected into every camera, one
+    point at a time, through the camera's own pinhole model."""
+    v_count = scene.num_views
+    out = np.zeros((v_count, v_count))
+    for v in range(v_count):
+        members = np.flatnonzero(scene.view_id == v)
+        pick = members[np.linspace(0, members.size - 1,
+                                   min(samples, members.size)).astype(int)]
+        for j, cam in enumerate(scene.cameras):
+            hits = 0
+            for g in pick:
+                p = np.append(scene.gaussians.means[g].astype(np.float64), 1.0)
+                x, y, z = (cam.world_to_camera @ p)[:3]
+                if z <= 0:
+                    continue
+                u = cam.fx * x / z + cam.cx
+                w = cam.fy * y / z + cam.cy
+                hits += (0 <= u < cam.width) and (0 <= w < cam.height)
+            out[j, v] = hits / pick.size
+    return out
+
+
+def test_covisibility_matches_a_loop_over_points(street):
+    scene, _ = street
+    np.testing.assert_allclose(covisibility(scene, samples=40), _covisibility_by_loop(scene, 40),
+                               atol=1e-12)
+
+
+def test_neighbourhoods_hold_the_most_covisible_views_and_the_verifiers(street):
+    scene, _ = street
+    v_count = scene.num_views
+    c = covisibility(scene)
+    shared = c + c.T
+    for k in (1, 3, 5):
+        hoods = neighbourhoods(scene, k, 3)
+        assert len(hoods) == v_count
+        for j, hood in enumerate(hoods):
+            assert hood[j]
+            # the k others sharing the most with j (ties to the lower index) are in
+            ranked = sorted((-shared[j, i], i) for i in range(v_count) if i != j)
+            for _, i in ranked[:k]:
+                assert hood[i]
+        for v in range(v_count):    # the three views seeing most of v hold v
+            ranked = sorted((-c[j, v], j) for j in range(v_count) if j != v)
+            for _, j in ranked[:3]:
+                assert hoods[j][v]
+        # nothing else: each camera holds itself, k neighbours and the views it verifies
+        for j, hood in enumerate(hoods):
+            verified = {v for v in range(v_count) if v != j and j in
+                        [i for _, i in sorted((-c[i, v], i) for i in range(v_count)
+                                              if i != v)[:3]]}
+            near = {i for _, i in sorted((-shared[j, i], i) for i in range(v_count)
+                                        if i != j)[:k]}
+            assert set(np.flatnonzero(hood)) == {j} | near | verified
+    assert neighbourhoods(scene, v_count - 1, 3) is None
+    assert neighbourhoods(scene, None, 3) is None
+
+
+def test_a_view_prepared_on_a_subset_renders_that_subset(street):
+    scene, _ = street
+    rng = np.random.default_rng(0)
+    keep = rng.random(len(scene)) < 0.4
+    cam = scene.cameras[2]
+    view = prepare(scene, cam, keep=keep)
+    want = render(scene, cam, keep=keep)
+    got = view.render()
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    more = keep & (rng.random(len(scene)) < 0.5)     # a keep mask within the subset
+    for a, b in zip(view.render(keep=more), render(scene, cam, keep=more)):
+        np.testing.assert_array_equal(a, b)
+    assert view.num_visible <= keep.sum()
+
+
+def test_every_view_a_neighbour_is_the_exact_filter(street):
+    scene, _ = street
+    ex = get_extractor("local")
+    exact = filter_distractors(scene, config=FilterConfig(), extractor=ex)
+    same = filter_distractors(scene, config=FilterConfig(neighbours=scene.num_views - 1),
+                              extractor=ex)
+    np.testing.assert_array_equal(same.keep, exact.keep)
+    assert [c.record() for c in same.candidates] == [c.record() for c in exact.candidates]
+
+
+def test_bounded_neighbourhoods_run_and_change_only_what_the_renders_hold(street):
+    scene, truth = street
+    ex = get_extractor("local")
+    res = filter_distractors(scene, config=FilterConfig(neighbours=3), extractor=ex)
+    assert res.removed[truth].mean() > 0.5          # still finds most distractors
+    assert res.removed[~truth].mean() < 0.02
+    # each candidate's verifying views hold its view
+    hoods = neighbourhoods(scene, 3, 3)
+    for c in res.candidates:
+        for j in c.verify_views:
+            assert hoods[j][c.view] or c.scores.get("individual", 0.0) == 0.0
+
+
+def test_neighbours_is_validated():
+    for bad in (0, -1, 1.5, "all"):
+        with pytest.raises(ClearsplatError) as e:
+            FilterConfig(neighbours=bad)
+        assert e.value.field == "neighbours"
+    assert FilterConfig(neighbours=None).neighbours is None
