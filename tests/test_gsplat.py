@@ -584,6 +584,31 @@ def test_filter_on_gpu_path_equals_cpu_filter(fake_gsplat, monkeypatch):
             assert a.scores[k] == pytest.approx(b.scores[k], rel=1e-4, abs=1e-9)
 
 
+def test_filter_on_gpu_path_with_neighbourhoods_equals_cpu_filter(fake_gsplat, monkeypatch):
+    # Bounded neighbourhoods on the GPU path: each view's keep masks narrowed to the views it
+    # holds; the native path prepares its views on that subset. The same decisions.
+    from clearsplat.render import gsplat as _gsplat
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import FilterConfig, filter_distractors
+    from clearsplat.synth import make_world, reconstruct
+    world = make_world("street", num_views=6, seed=2, height=48, width=80)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=2)
+    fake_gsplat.add(*scene.cameras)
+    real = _gsplat.prepare_gsplat_views
+    monkeypatch.setattr(_gsplat, "prepare_gsplat_views",
+                        lambda scene, cameras, *, device: real(scene, cameras, device="cpu"))
+    extractor = get_extractor("local")
+    cfg = FilterConfig(neighbours=2, verify_views="mutual", min_relative_score=0.0)
+    cpu = filter_distractors(scene, config=cfg, extractor=extractor)
+    gpu = filter_distractors(scene, config=cfg.replace(device="cuda:0"), extractor=extractor)
+    assert cpu.removed.sum() > 0
+    np.testing.assert_array_equal(gpu.keep, cpu.keep)
+    assert [c.verify_views for c in gpu.candidates] == [c.verify_views for c in cpu.candidates]
+    for a, b in zip(gpu.candidates, cpu.candidates):
+        for k in a.scores:
+            assert a.scores[k] == pytest.approx(b.scores[k], rel=1e-4, abs=1e-9)
+
+
 def test_filter_device_is_validated():
     from clearsplat.filter import FilterConfig
     for bad in ("gpu", "cuda:x", "CUDA", 0):

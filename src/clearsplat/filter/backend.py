@@ -33,13 +33,14 @@ other module of the filter decides which renderer answers.
 
 from __future__ import annotations
 
+import numpy as np
+
 from .._memory import available_memory, check_memory, estimate_filter_memory
-from ..errors import ClearsplatError
 from .config import FilterConfig
 from .verify import Verifier
 from .views import PreparedViews
 
-__all__ = ["FilterBackend", "NativeBackend", "DeviceBackend", "backend_for"]
+__all__ = ["FilterBackend", "NativeBackend", "DeviceBackend", "HeldView", "backend_for"]
 
 
 class FilterBackend:
@@ -143,12 +144,47 @@ class DeviceBackend(FilterBackend):
     there is no memory check here."""
 
     def prepare_views(self, scene, previous=None, hoods=None):
-        if hoods is not None:
-            raise ClearsplatError("bounded neighbourhoods run on the CPU for now: set "
-                                  "neighbours to null with a CUDA device", field="neighbours")
         from ..render.gsplat import prepare_gsplat_views
-        return DeviceViews(prepare_gsplat_views(scene, scene.cameras,
-                                                device=self.config.device)), {}
+        views = prepare_gsplat_views(scene, scene.cameras, device=self.config.device)
+        if hoods is not None:
+            views = [HeldView(v, hoods[j][scene.view_id]) for j, v in enumerate(views)]
+        return DeviceViews(views), {}
+
+
+class HeldView:
+    """A prepared view that renders only the ``held`` ((N,) bool) Gaussians: every keep mask
+    it is given is narrowed to them (None: all of them). The device backend's bounded
+    neighbourhoods (the native backend prepares its views on the subset instead; both render
+    the same Gaussians)."""
+
+    def __init__(self, view, held: np.ndarray):
+        self._view, self._held = view, held
+
+    def __getattr__(self, name):
+        return getattr(self._view, name)
+
+    def _k(self, keep):
+        return self._held if keep is None else (np.asarray(keep) & self._held)
+
+    def render(self, *, keep=None, **kwargs):
+        return self._view.render(keep=self._k(keep), **kwargs)
+
+    def render_pair(self, *, keep, first=None, **kwargs):
+        return self._view.render_pair(keep=self._k(keep), first=self._k(first), **kwargs)
+
+    def rerender(self, base, *, keep, **kwargs):
+        return self._view.rerender(base, keep=self._k(keep), **kwargs)
+
+    def tiles_touched(self, gaussians):
+        g = np.asarray(gaussians)
+        g = g & self._held if g.dtype == np.bool_ else g[self._held[g]]
+        return self._view.tiles_touched(g)
+
+    def centres_inside(self):
+        return self._view.centres_inside() & self._held
+
+    def contributions(self, mask, *, keep=None):
+        return self._view.contributions(mask, keep=self._k(keep))
 
 
 def backend_for(config: FilterConfig) -> FilterBackend:

@@ -287,6 +287,14 @@ class FilterConfig:
         0.58 dB at 16 views, 0.18 dB at 8 and 0.02 dB at 4, and at 8 views it finds most of
         the passers-by that ``min_relative_score`` rejects in the first round, once the other
         views' passers-by that their removal uncovered are gone). 1: the paper (a single run).
+    verify_views : {"centres", "mutual"}
+        How each view's verification views V_i are chosen. ``"centres"``: the paper, the
+        ``num_verify_views`` views that see the most centres of its Gaussians inside their
+        image (ties to the lower index). ``"mutual"``: those that share the most of its field
+        of view both ways (:func:`clearsplat.filter.neighbours.covisibility`, ``C[j, i] +
+        C[i, j]``): in a capture that moves forward every camera behind view i sees all of
+        its Gaussians, small and far, and the paper's count ties them and picks the first
+        frames; the mutual share picks the nearest.
     neighbours : int or None
         Bounded neighbourhoods: each input camera's renders (R_i, R_i^-i, the static reference
         and verification's bases) hold only the Gaussians of the ``neighbours`` other views
@@ -337,6 +345,7 @@ class FilterConfig:
     depth_scale_reach: int = 0
     rounds: int | str = "auto"
     neighbours: int | None = None
+    verify_views: Literal["centres", "mutual"] = "centres"
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -437,6 +446,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "depth_scale_reach": FieldSpec("integer", 0),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "neighbours": FieldSpec("integer", 1, optional=True),
+    "verify_views": FieldSpec("choice", choices=("centres", "mutual")),
 }
 
 

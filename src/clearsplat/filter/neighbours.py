@@ -19,11 +19,13 @@ filter is exactly the paper's.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..scene import Scene
 
-__all__ = ["covisibility", "neighbourhoods"]
+__all__ = ["covisibility", "ViewPlan", "view_plan", "neighbourhoods"]
 
 #: Gaussians sampled per view for the co-visibility (evenly over the view's members).
 _SAMPLES = 4096
@@ -53,6 +55,52 @@ def covisibility(scene: Scene, *, samples: int = _SAMPLES) -> np.ndarray:
     return out
 
 
+@dataclass(eq=False)
+class ViewPlan:
+    """Which views each camera's renders hold, and which views verify each view's candidates.
+
+    Attributes
+    ----------
+    hoods : list of (V,) bool, or None
+        Per camera j, the views whose Gaussians its renders hold (S(j)); None: every view.
+    verifiers : list of list of int, or None
+        Per view i, its verification views V_i; None: chosen from the exclusion renders'
+        counts, as the paper does.
+    """
+
+    hoods: list | None
+    verifiers: list | None
+
+
+def view_plan(scene: Scene, *, neighbours: int | None, verify_views: str,
+              num_verify_views: int) -> ViewPlan | None:
+    """The :class:`ViewPlan` of ``FilterConfig.neighbours`` and ``verify_views``; None for the
+    paper's (every view held, V_i from the counts of the exclusion renders)."""
+    v_count = scene.num_views
+    bounded = neighbours is not None and neighbours < v_count - 1
+    if not bounded and verify_views == "centres":
+        return None
+    c = covisibility(scene)
+    shared = c + c.T
+    # V_i: the views that see the most of view i's Gaussians (the paper), or that share the
+    # most of its field of view both ways ("mutual").
+    score = c if verify_views == "centres" else shared
+    verifiers = [sorted((j for j in range(v_count) if j != v),
+                        key=lambda j: (-score[j, v], j))[:num_verify_views]
+                 for v in range(v_count)]
+    if not bounded:
+        return ViewPlan(None, verifiers if verify_views != "centres" else None)
+    hoods = [np.zeros(v_count, dtype=bool) for _ in range(v_count)]
+    for j in range(v_count):
+        hoods[j][j] = True
+        others = sorted((k for k in range(v_count) if k != j), key=lambda k: (-shared[j, k], k))
+        hoods[j][others[:neighbours]] = True
+    for v in range(v_count):     # the views that verify v hold v
+        for j in verifiers[v]:
+            hoods[j][v] = True
+    return ViewPlan(hoods, verifiers)
+
+
 def neighbourhoods(scene: Scene, neighbours: int | None, num_verify_views: int
                    ) -> list[np.ndarray] | None:
     """Per camera j, the (V,) bool views its renders hold (S(j), see the module), or None when
@@ -60,18 +108,6 @@ def neighbourhoods(scene: Scene, neighbours: int | None, num_verify_views: int
 
     Ties in co-visibility go to the lower view index.
     """
-    v_count = scene.num_views
-    if neighbours is None or neighbours >= v_count - 1:
-        return None
-    c = covisibility(scene)
-    shared = c + c.T
-    hoods = [np.zeros(v_count, dtype=bool) for _ in range(v_count)]
-    for j in range(v_count):
-        hoods[j][j] = True
-        others = sorted((j2 for j2 in range(v_count) if j2 != j), key=lambda k: (-shared[j, k], k))
-        hoods[j][others[:neighbours]] = True
-    for v in range(v_count):     # the views that verify v hold v
-        verifiers = sorted((j for j in range(v_count) if j != v), key=lambda j: (-c[j, v], j))
-        for j in verifiers[:num_verify_views]:
-            hoods[j][v] = True
-    return hoods
+    plan = view_plan(scene, neighbours=neighbours, verify_views="centres",
+                     num_verify_views=num_verify_views)
+    return None if plan is None else plan.hoods

@@ -33,7 +33,7 @@ from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
 from .refine import refine
-from .neighbours import neighbourhoods
+from .neighbours import view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
 from .rounds import Carry, in_round, merge_round
@@ -89,9 +89,10 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     rounds = config.rounds
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
-    hoods = neighbourhoods(scene, config.neighbours, config.num_verify_views)
+    plan = view_plan(scene, neighbours=config.neighbours, verify_views=config.verify_views,
+                     num_verify_views=config.num_verify_views)
     result, carry = run_round(scene, config, extractor, backend, report, hold=rounds > 1,
-                              hoods=hoods)
+                              plan=plan)
     previous = None
     try:
         for round_ in range(2, rounds + 1):
@@ -101,7 +102,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             previous, carry = carry, None
             later, carry = run_round(scene.subset(kept), config, extractor, backend,
                                      in_round(report, round_), previous=previous,
-                                     hold=round_ < rounds, hoods=hoods)
+                                     hold=round_ < rounds, plan=plan)
             previous = None             # spent (the round released it)
             merge_round(result, later, kept, round_)
             if later.keep.all():        # nothing new: a further round would find the same
@@ -114,18 +115,20 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
 
 def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Progress, *,
-              previous: Carry | None = None, hold: bool = False, hoods: list | None = None
+              previous: Carry | None = None, hold: bool = False, plan=None
               ) -> tuple[FilterResult, Carry | None]:
     """One run of the procedure on ``scene`` (at least two views and one Gaussian).
 
     ``previous``: what the round before handed on, ``scene`` being its kept Gaussians.
     ``hold``: hand this round's views and renders on (where the backend can) instead of
-    releasing them. ``hoods``: per camera, the views its renders hold (``neighbours``; None:
-    all). Returns the round's result and what it hands on (or None).
+    releasing them. ``plan``: the views each camera's renders hold and each view's
+    verification views (:func:`~clearsplat.filter.neighbours.view_plan`; None: the paper's). Returns the round's result and what it hands on (or None).
     """
     backend.check_memory(scene, previous)
     state = RoundState.begin(scene, config, backend, extractor, report)     # times "proposal"
-    state.views, touched = backend.prepare_views(scene, previous, hoods)
+    state.plan = plan
+    state.views, touched = backend.prepare_views(scene, previous,
+                                                 None if plan is None else plan.hoods)
     renders = exclusion_renders(state, touched, previous)                 # R_i, R_i^-i
     if previous is not None:    # every view taken or prepared again: drop what is left
         previous.release()

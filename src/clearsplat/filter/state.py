@@ -43,6 +43,9 @@ class RoundState:
         The similarity thresholds (the config's, else the extractor's calibration).
     views : view set
         One prepared view per input camera (:meth:`FilterBackend.prepare_views`).
+    plan : ViewPlan or None
+        The views each camera's renders hold and each view's verification views
+        (``neighbours``, ``verify_views``; None: the paper's).
     report : callable(stage, done, total)
         Progress.
     timings : dict of str to float
@@ -58,6 +61,7 @@ class RoundState:
     tau2: float
     report: Progress
     views: object = None
+    plan: object = None
     timings: dict = field(default_factory=lambda: {"proposal": 0.0, "verification": 0.0})
     _stage: str = "proposal"
     _start: float = field(default_factory=time.perf_counter)

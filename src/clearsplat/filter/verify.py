@@ -309,8 +309,12 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
     round's :class:`~clearsplat.filter.exclusion.ExclusionRenders` (the bases).
     """
     config, views, own = state.config, state.views, state.own
-    views_of = {i: top_views(renders.seen, i, config.num_verify_views)
-                for i in range(state.num_views)}
+    plan = state.plan
+    if plan is not None and plan.verifiers is not None:
+        views_of = dict(enumerate(plan.verifiers))
+    else:
+        views_of = {i: top_views(renders.seen, i, config.num_verify_views)
+                    for i in range(state.num_views)}
     all_keep = np.ones(state.n, dtype=bool)
     totals = {c.index: Partial() for c in candidates}
     for c in candidates:
