@@ -165,3 +165,19 @@ def test_bench_runs_a_realism_scenario_and_reports_the_exact_gain():
     assert "scenario" in text and "coarse" in text and "of exact" in text
     with pytest.raises(ClearsplatError, match="unknown realism"):
         run_suite(families=("street",), views=(3,), height=48, width=80, realism=("fog",))
+
+
+def test_bench_occlusion_reaches_the_worlds():
+    from clearsplat.bench import run_suite
+    from clearsplat.filter import FilterConfig
+    from clearsplat.synth.worlds import make_world
+    cfg = {"default": FilterConfig()}
+    medium, high = (run_suite(families=("street",), views=(4,), height=48, width=80,
+                              configs=cfg, occlusion=o)[0] for o in ("medium", "high"))
+    assert medium["family"] == "street" and high["family"] == "street/high"
+    # the rows count the transients of the world made at that level
+    for row, level in ((medium, "medium"), (high, "high")):
+        world = make_world("street", num_views=4, seed=0, height=48, width=80, occlusion=level)
+        assert row["distractor_gaussians"] > 0
+        assert sum(int(m.sum()) for m in world.transient_masks) > 0
+    assert high["distractor_gaussians"] != medium["distractor_gaussians"]

@@ -88,6 +88,7 @@ class BenchCase:
     width: int = 448
     configs: dict = field(default_factory=lambda: {"default": FilterConfig()})
     realism: str = "plain"
+    occlusion: str = "medium"
 
 
 def _quality(scene, keep, cameras, images) -> dict:
@@ -110,7 +111,7 @@ def run_case(case: BenchCase, *, log: Callable[[str], None] = lambda s: None,
     """
     t0 = time.perf_counter()
     world = make_world(case.family, num_views=case.num_views, seed=case.seed,
-                       height=case.height, width=case.width)
+                       height=case.height, width=case.width, occlusion=case.occlusion)
     t_world = time.perf_counter() - t0
     t0 = time.perf_counter()
     if parse_realism(case.realism):
@@ -136,7 +137,8 @@ def run_case(case: BenchCase, *, log: Callable[[str], None] = lambda s: None,
         clean_q = _quality(clean, clean_res.keep, world.test_cameras, world.test_images)
         rows.append({
             "realism": case.realism,
-            "family": case.family, "views": case.num_views, "seed": case.seed, "config": name,
+            "family": _family(case), "views": case.num_views, "seed": case.seed,
+            "config": name,
             "gaussians": len(scene),
             "baseline": base_q, "filtered": q, "reference": ref_q, "exact": exact_q,
             "recall": stats["recall"], "other_removed": stats["static_removed"],
@@ -156,11 +158,12 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
               views: Sequence[int] = (4, 8, 16), seeds: Sequence[int] = (0,),
               configs: dict | None = None, height: int = 256, width: int = 448,
               log: Callable[[str], None] = lambda s: None, extractor=None,
-              realism: Sequence[str] = ("plain",),
+              realism: Sequence[str] = ("plain",), occlusion: str = "medium",
               workers: int | None = None, address: str | None = None) -> list[dict]:
     """Run the benchmark grid; rows as returned by :func:`run_case`, in grid order.
 
-    ``realism`` lists the backbone scenarios (:data:`clearsplat.synth.realism.SCENARIOS`).
+    ``realism`` lists the backbone scenarios (:data:`clearsplat.synth.realism.SCENARIOS`);
+    ``occlusion`` is the worlds' level of transients (``make_world``: low, medium, high).
     With ``workers`` or ``address`` each cell (scenario, world, view count, seed) is a Ray task
     (:mod:`clearsplat.batch`): ``workers`` CPUs of a local Ray instance started and stopped
     here, or the cluster at ``address``. Otherwise the cells run one after another in this
@@ -169,7 +172,7 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
     configs = configs or {"default": FilterConfig()}
     for r in realism:
         parse_realism(r)                 # fail on a bad name before any work
-    cases = [BenchCase(family, v, seed, height, width, configs, r)
+    cases = [BenchCase(family, v, seed, height, width, configs, r, occlusion)
              for r in realism for family in families for v in views for seed in seeds]
     if workers is None and address is None:
         rows = []
@@ -189,9 +192,14 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
     return [row for rows in results for row in rows]
 
 
+def _family(case: BenchCase) -> str:
+    """The family's name in rows and tables, with its occlusion level where not medium."""
+    return case.family if case.occlusion == "medium" else f"{case.family}/{case.occlusion}"
+
+
 def _where(case: BenchCase) -> str:
     """A cell's name in progress lines (the scenario only where it is not the plain one)."""
-    name = f"{case.family} {case.num_views} views seed {case.seed}"
+    name = f"{_family(case)} {case.num_views} views seed {case.seed}"
     return name if case.realism == "plain" else f"{case.realism} {name}"
 
 
