@@ -302,3 +302,17 @@ def test_report_names_a_changed_config(scene, result, tmp_path):
         html = f.read()
     assert "preset 'default' with eta=0.4, dilation=3" in html
     assert "Input: an in-memory scene" in html
+
+
+def test_every_candidate_is_expanded_and_only_the_accepted_removed(result):
+    """Rejected candidates keep the expansion that accepting them would remove (for
+    ``clearsplat edit``); the removals stay the union of the accepted ones'."""
+    assert result.candidates and all(c.expanded is not None for c in result.candidates)
+    assert any(not c.accepted for c in result.candidates)
+    union = np.zeros(result.keep.size, dtype=bool)
+    for c in result.candidates:
+        if c.accepted:
+            union[c.expanded] = True
+        # the region lies within the support, so its dilation holds its own Gaussians
+        assert set(c.gaussians.tolist()) <= set(c.expanded.tolist())
+    np.testing.assert_array_equal(result.removed, union)

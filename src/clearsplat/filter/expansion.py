@@ -35,8 +35,11 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
     config, revealing = state.config, refinement.revealing
     grow = config.expand_connected and revealing is not None
     labels: dict = {}
+    support: dict = {}      # view -> the support upsampled to pixels, made once
     for c in candidates:
-        pixels = dilate(c.pixels, config.dilation) & proposals[c.view].support_pixels
+        if c.view not in support:
+            support[c.view] = proposals[c.view].support_pixels
+        pixels = dilate(c.pixels, config.dilation) & support[c.view]
         if grow:
             pixels = grow_connected(pixels, c.view, labels, refinement.front_pixels[c.view],
                                     proposals[c.view], state.tau2)

@@ -167,6 +167,11 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
         state.lap("second_range")
+        # What accepting each of the others would remove, for review (clearsplat edit);
+        # the removals stay those of the accepted candidates.
+        expand(state, [c for c in candidates if c.expanded is None], proposals, region_map,
+               refinement)
+        state.lap("expand_rejected")
     else:
         expand(state, candidates, proposals, region_map, refinement)
         for c in candidates:

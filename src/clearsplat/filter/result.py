@@ -34,8 +34,10 @@ class Candidate:
     gaussians : (M,) int64
         Gaussians the region maps to [C_k].
     expanded : (M',) int64 or None
-        Gaussians of the dilated region within the support [hat C_k], for candidates that
-        passed the individual test.
+        Gaussians of the dilated region within the support [hat C_k]: what the candidate
+        removes where accepted, and what accepting it would remove otherwise
+        (``clearsplat edit``). Every candidate of a filter run has one; None only before
+        expansion.
     verify_views : list of int
         The verification views [V_i].
     scores : dict of str to float
