@@ -135,7 +135,9 @@ class FilterConfig:
     checkpoint : str or None
         Local checkpoint directory or cached model id for the DINO extractors.
     tau1, tau2 : float or None
-        Similarity boundaries of the two proposal ranges [tau_1, tau_2].
+        Similarity boundaries of the two proposal ranges [tau_1, tau_2]. None: the
+        extractor's calibration (0.51 and 0.69 for ``"local"``, 0.63 and 0.80 for ``"rgb"``, the
+        paper's 0.50 and 0.70 for DINO).
     eta : float
         Support: minimum patch-mean accumulated opacity of the exclusion render [eta].
     num_verify_views : int
@@ -168,7 +170,9 @@ class FilterConfig:
         ``"depth"``: the same against the plain exclusion render R_i^-i.
         ``"none"``: every Gaussian of the region (the paper).
     refine_margin : float
-        Relative depth gap for ``refine="depth"``.
+        Relative depth gap that counts as "in front" of the reference in refinement
+        (``refine="depth"`` and ``"static-depth"``): a Gaussian qualifies below
+        ``(1 - refine_margin)`` times the reference depth at its pixel.
     refine_color : float or None
         With ``refine="static-depth"``: also keep Gaussians whose input colour differs from the
         static reference's colour by more than this (L1 over RGB) and that do not lie behind it

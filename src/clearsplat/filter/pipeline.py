@@ -122,7 +122,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     ``previous``: what the round before handed on, ``scene`` being its kept Gaussians.
     ``hold``: hand this round's views and renders on (where the backend can) instead of
     releasing them. ``plan``: the views each camera's renders hold and each view's
-    verification views (:func:`~clearsplat.filter.neighbours.view_plan`; None: the paper's). Returns the round's result and what it hands on (or None).
+    verification views (:func:`~clearsplat.filter.neighbours.view_plan`; None: the
+    paper's). Returns the round's result and what it hands on (or None).
     """
     backend.check_memory(scene, previous)
     state = RoundState.begin(scene, config, backend, extractor, report)     # times "proposal"

@@ -20,8 +20,8 @@ from .association import ViewIndex
 from .masks import label8, touched_components
 from .robust import misregistration, tolerant_reference
 
-__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "join_touching", "member_pixels",
-           "pixels_of"]
+__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "join_touching",
+           "member_depths", "member_pixels", "pixels_of"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -39,7 +39,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         align_scale: bool = False,
                         reference_rgbs_hi: list[np.ndarray] | None = None,
                         scale_reach: int = 0, color_grow: float | None = None,
-                        workers: int | None = None) -> np.ndarray:
+                        workers: int | None = None, members: tuple | None = None
+                        ) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -83,15 +84,12 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     workers : int, optional
         Threads, one view at a time each (default: the cores, at most ``OMP_NUM_THREADS``); the
         result does not depend on it.
+    members : (depths, pixels), optional
+        :func:`member_depths` of ``scene`` and ``index``, when the caller has them already.
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
-    # Camera depths and pixels first, in this thread (matrix products, left to BLAS as they
-    # are, whose own threads must not depend on ours).
-    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
-              if members.size else None for view, members in enumerate(index.members)]
-    pixels = [member_pixels(scene, index, view) if members.size else None
-              for view, members in enumerate(index.members)]
+    depths, pixels = member_depths(scene, index) if members is None else members
 
     def view_front(view: int) -> np.ndarray | None:
         members = index.members[view]
@@ -198,6 +196,18 @@ class Refinement:
     front_pixels: list | None = None
 
 
+def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
+    """Per view, the camera depth (M,) float64 and the pixel (M,) int64 (:func:`member_pixels`)
+    of each of its Gaussians (None for a view without any): what every depth test of a round
+    reads. Computed in the calling thread: matrix products, left to BLAS as they are, whose
+    own threads must not depend on ours."""
+    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
+              if members.size else None for view, members in enumerate(index.members)]
+    pixels = [member_pixels(scene, index, view) if members.size else None
+              for view, members in enumerate(index.members)]
+    return depths, pixels
+
+
 def refine(state, renders, images: list, raw: list) -> Refinement:
     """The Gaussians that may belong to a candidate, and their pixels.
 
@@ -238,12 +248,13 @@ def _revealing(state, excl: list, images: list, raw: list) -> np.ndarray | None:
         radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
                  for i in range(state.num_views)]
     revealing = None
+    members = member_depths(state.scene, state.index)     # the same in every pass
     for _ in range(config.refine_passes):
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
         depths, rgbs = static_reference(state, excl, proposed)
-        revealing = _in_front(state, depths, rgbs, images, radii)
+        revealing = _in_front(state, depths, rgbs, images, radii, members)
         proposed &= revealing
     return revealing
 
@@ -272,7 +283,8 @@ def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, lis
     return reference, reference_rgb
 
 
-def _in_front(state, reference: list, reference_rgb: list, images: list, radii) -> np.ndarray:
+def _in_front(state, reference: list, reference_rgb: list, images: list, radii,
+              members: tuple) -> np.ndarray:
     """:func:`revealing_gaussians` against the static reference, widened by ``radii``
     (``refine_tolerance``) where set."""
     config = state.config
@@ -289,7 +301,7 @@ def _in_front(state, reference: list, reference_rgb: list, images: list, radii) 
                                reference_rgbs_hi=reference_hi,
                                scale_reach=config.depth_scale_reach,
                                color_grow=config.refine_color_grow,
-                               workers=config.num_threads)
+                               workers=config.num_threads, members=members)
 
 
 def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
