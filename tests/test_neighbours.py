@@ -125,3 +125,42 @@ def test_neighbours_is_validated():
             FilterConfig(neighbours=bad)
         assert e.value.field == "neighbours"
     assert FilterConfig(neighbours=None).neighbours is None
+
+
+def test_video_passers_by_stay_for_consecutive_views():
+    world = make_world("street", num_views=10, seed=4, height=48, width=80, transients="video")
+    names = [{p.name for p in prims} for prims in world.transients]
+    people = set().union(*names)
+    assert people
+    for person in people:
+        views = [i for i, n in enumerate(names) if person in n]
+        # consecutive views, at most five, and each stays for two unless the capture ends
+        assert views == list(range(views[0], views[-1] + 1)) and len(views) <= 5
+        assert len(views) >= 2 or views[-1] == world.num_views - 1
+    with pytest.raises(ClearsplatError) as e:
+        make_world("object", num_views=4, height=48, width=80, transients="video")
+    assert e.value.field == "transients"
+
+
+def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere():
+    world = make_world("street", num_views=6, seed=4, height=48, width=80, transients="video")
+    scene, truth = realistic_reconstruction(world, "plain", seed=4)
+    ex = get_extractor("local")
+    res = filter_distractors(scene, config=FilterConfig(leave_out=1, rounds=1,
+                                                         min_relative_score=0.0), extractor=ex)
+    assert res.candidates
+    for c in res.candidates:        # no verifying view next to the candidate's own
+        assert all(abs(j - c.view) > 1 for j in c.verify_views)
+    # R_i^-i without views i-1..i+1: the proposal's exclusion render equals a render of the
+    # other views' Gaussians alone
+    from clearsplat.render import render
+    for p in res.proposals:
+        far = np.abs(scene.view_id - p.view) > 1
+        np.testing.assert_array_equal(p.exclusion, render(scene, scene.cameras[p.view],
+                                                          keep=far).rgb)
+    zero = filter_distractors(scene, config=FilterConfig(leave_out=0, rounds=1,
+                                                          min_relative_score=0.0), extractor=ex)
+    plain = filter_distractors(scene, config=FilterConfig(rounds=1, min_relative_score=0.0),
+                               extractor=ex)
+    np.testing.assert_array_equal(zero.keep, plain.keep)
+    assert res.removed[truth].mean() > zero.removed[truth].mean()

@@ -291,6 +291,11 @@ class FilterConfig:
         0.58 dB at 16 views, 0.18 dB at 8 and 0.02 dB at 4, and at 8 views it finds most of
         the passers-by that ``min_relative_score`` rejects in the first round, once the other
         views' passers-by that their removal uncovered are gone). 1: the paper (a single run).
+    leave_out : int
+        Views on each side, in input order, whose Gaussians R_i^-i also leaves out with view
+        i's own, and which do not verify view i. For video: a passer-by who stays for a few
+        consecutive frames is in the neighbouring frames' predictions too, where R_i^-i would
+        show him instead of the surface behind. 0: the paper (only view i's own).
     verify_views : {"centres", "mutual"}
         How each view's verification views V_i are chosen. ``"centres"``: the paper, the
         ``num_verify_views`` views that see the most centres of its Gaussians inside their
@@ -350,6 +355,7 @@ class FilterConfig:
     rounds: int | str = "auto"
     neighbours: int | None = None
     verify_views: Literal["centres", "mutual"] = "centres"
+    leave_out: int = 0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -451,6 +457,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "neighbours": FieldSpec("integer", 1, optional=True),
     "verify_views": FieldSpec("choice", choices=("centres", "mutual")),
+    "leave_out": FieldSpec("integer", 0),
 }
 
 

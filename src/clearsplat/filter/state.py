@@ -38,7 +38,10 @@ class RoundState:
     index : ViewIndex
         Per view, its Gaussians and their pixels.
     own : list of (N,) bool
-        Per view i, the Gaussians predicted from it (left out of R_i^-i).
+        Per view i, the Gaussians left out of R_i^-i: those predicted from view i, and with
+        ``leave_out`` those of the views up to that many places before and after it.
+    left_out : (V, V) bool
+        ``left_out[i, v]``: view v's Gaussians are in ``own[i]``.
     tau1, tau2 : float
         The similarity thresholds (the config's, else the extractor's calibration).
     views : view set
@@ -60,6 +63,7 @@ class RoundState:
     tau1: float
     tau2: float
     report: Progress
+    left_out: np.ndarray = None
     views: object = None
     plan: object = None
     timings: dict = field(default_factory=lambda: {"proposal": 0.0, "verification": 0.0})
@@ -72,12 +76,17 @@ class RoundState:
               report: Progress) -> "RoundState":
         """The state of a round on ``scene``, its ``"proposal"`` stage timed from now."""
         index = ViewIndex(scene)
-        n = len(scene)
-        state = cls(scene, config, backend, index,
-                    own=[index.mask(i, n) for i in range(scene.num_views)],
+        n, v = len(scene), scene.num_views
+        gap = np.abs(np.arange(v)[:, None] - np.arange(v)[None, :])
+        left_out = gap <= config.leave_out
+        if config.leave_out == 0:
+            own = [index.mask(i, n) for i in range(v)]
+        else:
+            own = [left_out[i][scene.view_id] for i in range(v)]
+        state = cls(scene, config, backend, index, own=own,
                     tau1=extractor.tau1 if config.tau1 is None else config.tau1,
                     tau2=extractor.tau2 if config.tau2 is None else config.tau2,
-                    report=report)
+                    report=report, left_out=left_out)
         state.stage("proposal")
         return state
 

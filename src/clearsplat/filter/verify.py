@@ -249,8 +249,9 @@ def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex,
 def top_views(seen: np.ndarray, view: int, count: int) -> list[int]:
     """The ``count`` other views that see the most centres of ``view``'s Gaussians inside
     their image (ties to the lower index) [V_i]: :func:`verification_views` from the counts
-    ``seen[j, v]`` that the exclusion renders made."""
-    others = [j for j in range(seen.shape[0]) if j != view]
+    ``seen[j, v]`` that the exclusion renders made; a negative count marks a view that
+    cannot verify ``view`` (``leave_out``)."""
+    others = [j for j in range(seen.shape[0]) if j != view and seen[j, view] >= 0]
     ranked = sorted((-int(seen[j, view]), j) for j in others)
     return [j for _, j in ranked[:count]]
 
@@ -311,9 +312,12 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
     config, views, own = state.config, state.views, state.own
     plan = state.plan
     if plan is not None and plan.verifiers is not None:
-        views_of = dict(enumerate(plan.verifiers))
+        views_of = {i: [j for j in vs if not state.left_out[j, i]]
+                    for i, vs in enumerate(plan.verifiers)}
     else:
-        views_of = {i: top_views(renders.seen, i, config.num_verify_views)
+        # A view that leaves view i's Gaussians out of its base (``leave_out``) cannot verify.
+        seen = np.where(state.left_out, -1, renders.seen) if config.leave_out else renders.seen
+        views_of = {i: top_views(seen, i, config.num_verify_views)
                     for i in range(state.num_views)}
     all_keep = np.ones(state.n, dtype=bool)
     totals = {c.index: Partial() for c in candidates}

@@ -29,10 +29,17 @@ from ..errors import ClearsplatError
 from . import raycast as rc
 from .textures import Texture, random_texture
 
-__all__ = ["World", "make_world", "FAMILIES", "OCCLUSION_LEVELS"]
+__all__ = ["World", "make_world", "FAMILIES", "OCCLUSION_LEVELS", "TRANSIENT_MODES"]
 
 FAMILIES = ("object", "street")
 OCCLUSION_LEVELS = ("low", "medium", "high")
+#: ``"shots"``: each view's transients exist in that view only (photos taken apart);
+#: ``"video"`` (street): each passer-by stays for 2-5 consecutive views, walking 0.15-0.4 m
+#: between them, as in the frames of a video.
+TRANSIENT_MODES = ("shots", "video")
+#: Video passers-by: consecutive views each stays for, and metres walked between two.
+_VIDEO_STAY = (2, 5)
+_VIDEO_STEP = (0.15, 0.4)
 
 #: Passers-by per occlusion level: number range, distance range (m), size factor,
 #: share of the input views that contain any.
@@ -129,7 +136,8 @@ class World:
 
 
 def make_world(family: str, *, num_views: int = 8, seed: int = 0, height: int = 256,
-               width: int = 448, num_test_views: int = 3, occlusion: str = "medium") -> World:
+               width: int = 448, num_test_views: int = 3, occlusion: str = "medium",
+               transients: str = "shots") -> World:
     """Build a synthetic world and ray cast all its views.
 
     Parameters
@@ -145,6 +153,10 @@ def make_world(family: str, *, num_views: int = 8, seed: int = 0, height: int = 
         Held-out views, at least 1; halfway between consecutive input cameras.
     occlusion : {"low", "medium", "high"}
         How much the transients cover: their number, size and (street) distance.
+    transients : {"shots", "video"}
+        ``"shots"``: each input view's transients are its own. ``"video"`` (street family):
+        each passer-by stays for 2-5 consecutive views, walking 0.15-0.4 m between them; a
+        view's transients are then also in its neighbours' (:data:`TRANSIENT_MODES`).
 
     Returns
     -------
@@ -162,15 +174,23 @@ def make_world(family: str, *, num_views: int = 8, seed: int = 0, height: int = 
     if occlusion not in OCCLUSION_LEVELS:
         raise ClearsplatError(f"unknown occlusion level {occlusion!r}; expected one of "
                               f"{OCCLUSION_LEVELS}", field="occlusion")
+    if transients not in TRANSIENT_MODES or (transients == "video" and family != "street"):
+        raise ClearsplatError(f"unknown transients {transients!r} for the {family} family; "
+                              "expected 'shots', or 'video' for the street family",
+                              field="transients")
     for name, value, low in (("num_views", num_views, 2), ("num_test_views", num_test_views, 1),
                              ("height", height, 16), ("width", width, 16)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise ClearsplatError(f"expected an integer >= {low}, got {value!r}", field=name)
     ss = np.random.SeedSequence([int(seed), FAMILIES.index(family)])
     layout_rng, camera_rng, transient_rng = (np.random.default_rng(s) for s in ss.spawn(3))
-    build = _object_world if family == "object" else _street_world
-    return build(layout_rng, camera_rng, transient_rng, seed=int(seed), n=int(num_views),
-                 h=int(height), w=int(width), n_test=int(num_test_views), occlusion=occlusion)
+    if family == "object":
+        return _object_world(layout_rng, camera_rng, transient_rng, seed=int(seed),
+                             n=int(num_views), h=int(height), w=int(width),
+                             n_test=int(num_test_views), occlusion=occlusion)
+    return _street_world(layout_rng, camera_rng, transient_rng, seed=int(seed), n=int(num_views),
+                         h=int(height), w=int(width), n_test=int(num_test_views),
+                         occlusion=occlusion, video=transients == "video")
 
 
 # ------------------------------------------------------------------------------------------
@@ -352,7 +372,8 @@ def _solid(rng, xy, r, *, kind, tall, tex, name):
 # street family
 
 
-def _street_world(rng, cam_rng, tr_rng, *, seed, n, h, w, n_test, occlusion) -> World:
+def _street_world(rng, cam_rng, tr_rng, *, seed, n, h, w, n_test, occlusion,
+                  video: bool = False) -> World:
     road, walk_out = 3.2, 5.5
     sky = Texture(base=(0.45, 0.62, 0.88), alt=(0.93, 0.95, 0.98), noise_period=40.0,
                   noise_weight=0.9, grain_weight=0.0, seed=int(rng.integers(2**31 - 1)))
@@ -434,10 +455,10 @@ def _street_world(rng, cam_rng, tr_rng, *, seed, n, h, w, n_test, occlusion) -> 
     n_busy = min(n, max(1, int(round(level["share"] * n))))
     busy = set(tr_rng.choice(n, size=n_busy, replace=False).tolist())
 
-    def place(i, cam, hits):
-        if i not in busy:
-            return []
-        people, taken = [], list(footprints)
+    def spots(i, taken, person=None):
+        """Where view i's new passers-by stand: (xy, size) each, in front of camera i; with
+        ``person``, the parts of ``person(xy, size, k)`` for each, drawn as it is found."""
+        out = []
         for k in range(int(tr_rng.integers(level["count"][0], level["count"][1] + 1))):
             size = tr_rng.uniform(*level["size"])
             for _ in range(200):
@@ -449,8 +470,30 @@ def _street_world(rng, cam_rng, tr_rng, *, seed, n, h, w, n_test, occlusion) -> 
             else:
                 continue
             taken.append((xy[0], xy[1], 0.3 * size))
-            people += _person(tr_rng, xy, size, name=f"person{i}.{k}")
-        return people
+            out += [(xy, size)] if person is None else person(xy, size, k)
+        return out
+
+    tracks = []     # video: (first view, views, start xy, step per view (2,), size, seed)
+    if video:
+        for i in sorted(busy):
+            if any(t[0] <= i < t[0] + t[1] for t in tracks):
+                continue        # someone from an earlier view is still here
+            for xy, size in spots(i, list(footprints)):
+                heading = tr_rng.uniform(0, 2 * np.pi)
+                step = tr_rng.uniform(*_VIDEO_STEP) * np.array([np.cos(heading), np.sin(heading)])
+                tracks.append((i, int(tr_rng.integers(_VIDEO_STAY[0], _VIDEO_STAY[1] + 1)), xy,
+                               step, size, int(tr_rng.integers(2**31 - 1))))
+
+    def place(i, cam, hits):
+        if video:   # the same person (same draw of its look) a step further in each view
+            return [part for k, (first, stay, xy, step, size, s) in enumerate(tracks)
+                    if first <= i < first + stay
+                    for part in _person(np.random.default_rng(s), xy + (i - first) * step,
+                                        size, name=f"person{k}")]
+        if i not in busy:
+            return []
+        return spots(i, list(footprints),
+                     lambda xy, size, k: _person(tr_rng, xy, size, name=f"person{i}.{k}"))
 
     return _assemble("street", seed, occlusion, cameras, test_cameras, static, place,
                      dict(hfov_deg=hfov, step=step, busy_views=sorted(busy)))
