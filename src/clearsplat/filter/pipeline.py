@@ -138,7 +138,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
                "can be verified, the scene is returned unchanged")
         warnings.warn(msg, stacklevel=3)
         state.views.release()
-        return FilterResult(np.ones(len(scene), bool), [], [], state.timings, config,
+        return FilterResult(np.ones(len(scene), bool), [], [], state.clock.timings, config,
                             [msg]), None
     images = aligned_images(scene.images, renders.excl, config)
     proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
@@ -156,29 +156,26 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         for p in proposals:     # pixels verification leaves out (``verify_mask``)
             p.unreliable = refinement.front_pixels[p.view]
     state.lap("regions")
-    state.end_stage()
+    state.clock.end_stage()
 
-    state.stage("verification")
+    state.clock.stage("verification")
     if config.verify:
         verifier = make_verifier(state, images)
         q = range_masks(state, proposals)
         passed = individual_tests(state, candidates, q, verifier, renders)
         state.lap("individual")
-        expand(state, passed, proposals, region_map, refinement)         # hat C_k
-        state.lap("expand")
+    # hat C_k: of those that passed, and what accepting each of the others would remove
+    # (clearsplat edit); only the accepted ones are removed.
+    expand(state, candidates, proposals, region_map, refinement)
+    state.lap("expand")
+    if config.verify:
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
         state.lap("second_range")
-        # What accepting each of the others would remove, for review (clearsplat edit);
-        # the removals stay those of the accepted candidates.
-        expand(state, [c for c in candidates if c.expanded is None], proposals, region_map,
-               refinement)
-        state.lap("expand_rejected")
     else:
-        expand(state, candidates, proposals, region_map, refinement)
         for c in candidates:
             c.accepted, c.reason = True, "accepted without verification"
     keep = keep_mask(candidates, len(scene))
-    state.end_stage()
+    state.clock.end_stage()
     return _finish(state, keep, candidates, proposals, renders, touched, hold)
 
 
@@ -201,6 +198,6 @@ def _finish(state: RoundState, keep, candidates, proposals, renders, touched: di
         carry = Carry(views, renders.full, renders.excl, keep)
     else:
         views.release()
-    timings = state.timings
+    timings = state.clock.timings
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, state.config, stats=stats), carry

@@ -18,7 +18,7 @@ from .association import ViewIndex
 from .backend import FilterBackend
 from .config import FilterConfig
 
-__all__ = ["RoundState", "Progress"]
+__all__ = ["RoundState", "Clock", "Progress"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -51,8 +51,9 @@ class RoundState:
         (``neighbours``, ``verify_views``; None: the paper's).
     report : callable(stage, done, total)
         Progress.
-    timings : dict of str to float
-        Seconds per stage and sub-stage (``"proposal.features"``, ...).
+    clock : Clock
+        Seconds per stage and sub-stage (``"proposal.features"``, ...), the ``"proposal"``
+        stage timed from the state's making.
     """
 
     scene: Scene
@@ -66,10 +67,7 @@ class RoundState:
     left_out: np.ndarray = None
     views: object = None
     plan: object = None
-    timings: dict = field(default_factory=lambda: {"proposal": 0.0, "verification": 0.0})
-    _stage: str = "proposal"
-    _start: float = field(default_factory=time.perf_counter)
-    _last: float = field(default_factory=time.perf_counter)
+    clock: "Clock" = field(default_factory=lambda: Clock())
 
     @classmethod
     def begin(cls, scene: Scene, config: FilterConfig, backend: FilterBackend, extractor,
@@ -83,12 +81,10 @@ class RoundState:
             own = [index.mask(i, n) for i in range(v)]
         else:
             own = [left_out[i][scene.view_id] for i in range(v)]
-        state = cls(scene, config, backend, index, own=own,
-                    tau1=extractor.tau1 if config.tau1 is None else config.tau1,
-                    tau2=extractor.tau2 if config.tau2 is None else config.tau2,
-                    report=report, left_out=left_out)
-        state.stage("proposal")
-        return state
+        return cls(scene, config, backend, index, own=own,
+                   tau1=extractor.tau1 if config.tau1 is None else config.tau1,
+                   tau2=extractor.tau2 if config.tau2 is None else config.tau2,
+                   report=report, left_out=left_out)
 
     @property
     def n(self) -> int:
@@ -98,6 +94,26 @@ class RoundState:
     @property
     def num_views(self) -> int:
         return self.scene.num_views
+
+    def lap(self, step: str) -> None:
+        """Add the seconds since the last lap to ``timings["<stage>.<step>"]`` (:class:`Clock`)."""
+        self.clock.lap(step)
+
+    def mask(self, gaussians) -> np.ndarray:
+        """(N,) bool of int indices ``gaussians``."""
+        out = np.zeros(self.n, dtype=bool)
+        out[gaussians] = True
+        return out
+
+
+class Clock:
+    """Seconds per stage (``timings["proposal"]``, ``timings["verification"]``) and per step
+    of a stage (``timings["proposal.features"]``), from the making of the clock on."""
+
+    def __init__(self):
+        self.timings = {"proposal": 0.0, "verification": 0.0}
+        self._stage = "proposal"
+        self._start = self._last = time.perf_counter()
 
     def stage(self, name: str) -> None:
         """Start timing stage ``name`` (``"proposal"`` or ``"verification"``)."""
@@ -114,9 +130,3 @@ class RoundState:
         key = f"{self._stage}.{step}"
         self.timings[key] = self.timings.get(key, 0.0) + now - self._last
         self._last = now
-
-    def mask(self, gaussians) -> np.ndarray:
-        """(N,) bool of int indices ``gaussians``."""
-        out = np.zeros(self.n, dtype=bool)
-        out[gaussians] = True
-        return out
