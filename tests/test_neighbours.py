@@ -164,3 +164,20 @@ def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere
                                extractor=ex)
     np.testing.assert_array_equal(zero.keep, plain.keep)
     assert res.removed[truth].mean() > zero.removed[truth].mean()
+
+
+def test_neighbourhoods_skip_the_views_left_out():
+    world = make_world("street", num_views=8, seed=4, height=48, width=80, transients="video")
+    scene, _ = realistic_reconstruction(world, "plain", seed=4)
+    from clearsplat.filter.neighbours import view_plan
+    plan = view_plan(scene, neighbours=2, verify_views="mutual", num_verify_views=3, leave_out=2)
+    for v, vs in enumerate(plan.verifiers):
+        assert len(vs) == 3 and all(abs(j - v) > 2 for j in vs)
+    for j, hood in enumerate(plan.hoods):
+        # no view left out of j's exclusion render is among its neighbours or verified by it
+        assert not [k for k in np.flatnonzero(hood) if k != j and abs(k - j) <= 2]
+        assert hood.sum() >= 3
+    res = filter_distractors(scene, config=FilterConfig(neighbours=2, verify_views="mutual",
+                                                         leave_out=2, rounds=1),
+                             extractor=get_extractor("local"))
+    assert res.candidates and all(len(c.verify_views) == 3 for c in res.candidates)

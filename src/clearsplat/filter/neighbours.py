@@ -73,9 +73,13 @@ class ViewPlan:
 
 
 def view_plan(scene: Scene, *, neighbours: int | None, verify_views: str,
-              num_verify_views: int) -> ViewPlan | None:
+              num_verify_views: int, leave_out: int = 0) -> ViewPlan | None:
     """The :class:`ViewPlan` of ``FilterConfig.neighbours`` and ``verify_views``; None for the
-    paper's (every view held, V_i from the counts of the exclusion renders)."""
+    paper's (every view held, V_i from the counts of the exclusion renders).
+
+    Views within ``leave_out`` places of view i (``FilterConfig.leave_out``) are left out of
+    its exclusion render anyway: they are neither its neighbours nor its verifiers.
+    """
     v_count = scene.num_views
     bounded = neighbours is not None and neighbours < v_count - 1
     if not bounded and verify_views == "centres":
@@ -85,7 +89,7 @@ def view_plan(scene: Scene, *, neighbours: int | None, verify_views: str,
     # V_i: the views that see the most of view i's Gaussians (the paper), or that share the
     # most of its field of view both ways ("mutual").
     score = c if verify_views == "centres" else shared
-    verifiers = [sorted((j for j in range(v_count) if j != v),
+    verifiers = [sorted((j for j in range(v_count) if abs(j - v) > leave_out),
                         key=lambda j: (-score[j, v], j))[:num_verify_views]
                  for v in range(v_count)]
     if not bounded:
@@ -93,7 +97,8 @@ def view_plan(scene: Scene, *, neighbours: int | None, verify_views: str,
     hoods = [np.zeros(v_count, dtype=bool) for _ in range(v_count)]
     for j in range(v_count):
         hoods[j][j] = True
-        others = sorted((k for k in range(v_count) if k != j), key=lambda k: (-shared[j, k], k))
+        others = sorted((k for k in range(v_count) if abs(k - j) > leave_out),
+                        key=lambda k: (-shared[j, k], k))
         hoods[j][others[:neighbours]] = True
     for v in range(v_count):     # the views that verify v hold v
         for j in verifiers[v]:

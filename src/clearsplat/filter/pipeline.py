@@ -90,7 +90,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
     plan = view_plan(scene, neighbours=config.neighbours, verify_views=config.verify_views,
-                     num_verify_views=config.num_verify_views)
+                     num_verify_views=config.num_verify_views, leave_out=config.leave_out)
     result, carry = run_round(scene, config, extractor, backend, report, hold=rounds > 1,
                               plan=plan)
     previous = None
