@@ -181,3 +181,14 @@ def test_bench_occlusion_reaches_the_worlds():
         assert row["distractor_gaussians"] > 0
         assert sum(int(m.sum()) for m in world.transient_masks) > 0
     assert high["distractor_gaussians"] != medium["distractor_gaussians"]
+
+
+def test_bench_video_transients_reach_the_worlds():
+    from clearsplat.bench import run_suite
+    from clearsplat.filter import FilterConfig
+    (row,) = run_suite(families=("street",), views=(5,), height=48, width=80,
+                       configs={"default": FilterConfig()}, transients="video")
+    assert row["family"] == "street/video" and row["distractor_gaussians"] > 0
+    with pytest.raises(ClearsplatError) as e:
+        run_suite(families=("object",), views=(4,), height=48, width=80, transients="video")
+    assert e.value.field == "transients"

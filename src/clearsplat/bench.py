@@ -94,6 +94,7 @@ class BenchCase:
     configs: dict = field(default_factory=lambda: {"default": FilterConfig()})
     realism: str = "plain"
     occlusion: str = "medium"
+    transients: str = "shots"
 
 
 def _quality(scene, keep, cameras, images) -> dict:
@@ -116,7 +117,8 @@ def run_case(case: BenchCase, *, log: Callable[[str], None] = lambda s: None,
     """
     t0 = time.perf_counter()
     world = make_world(case.family, num_views=case.num_views, seed=case.seed,
-                       height=case.height, width=case.width, occlusion=case.occlusion)
+                       height=case.height, width=case.width, occlusion=case.occlusion,
+                       transients=case.transients)
     t_world = time.perf_counter() - t0
     t0 = time.perf_counter()
     if parse_realism(case.realism):
@@ -164,11 +166,13 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
               configs: dict | None = None, height: int = 256, width: int = 448,
               log: Callable[[str], None] = lambda s: None, extractor=None,
               realism: Sequence[str] = ("plain",), occlusion: str = "medium",
+              transients: str = "shots",
               workers: int | None = None, address: str | None = None) -> list[dict]:
     """Run the benchmark grid; rows as returned by :func:`run_case`, in grid order.
 
     ``realism`` lists the backbone scenarios (:data:`clearsplat.synth.realism.SCENARIOS`);
-    ``occlusion`` is the worlds' level of transients (``make_world``: low, medium, high).
+    ``occlusion`` is the worlds' level of transients (``make_world``: low, medium, high) and
+    ``transients`` how they come and go (``"shots"``, or ``"video"`` for the street family).
     With ``workers`` or ``address`` each cell (scenario, world, view count, seed) is a Ray task
     (:mod:`clearsplat.batch`): ``workers`` CPUs of a local Ray instance started and stopped
     here, or the cluster at ``address``. Otherwise the cells run one after another in this
@@ -177,7 +181,7 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
     configs = configs or {"default": FilterConfig()}
     for r in realism:
         parse_realism(r)                 # fail on a bad name before any work
-    cases = [BenchCase(family, v, seed, height, width, configs, r, occlusion)
+    cases = [BenchCase(family, v, seed, height, width, configs, r, occlusion, transients)
              for r in realism for family in families for v in views for seed in seeds]
     if workers is None and address is None:
         rows = []
@@ -198,8 +202,10 @@ def run_suite(*, families: Sequence[str] = ("object", "street"),
 
 
 def _family(case: BenchCase) -> str:
-    """The family's name in rows and tables, with its occlusion level where not medium."""
-    return case.family if case.occlusion == "medium" else f"{case.family}/{case.occlusion}"
+    """The family's name in rows and tables, with its occlusion level where not medium and
+    ``video`` for video-like transients."""
+    name = case.family if case.occlusion == "medium" else f"{case.family}/{case.occlusion}"
+    return name if case.transients == "shots" else f"{name}/video"
 
 
 def _where(case: BenchCase) -> str:

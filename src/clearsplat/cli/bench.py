@@ -26,6 +26,9 @@ def add_parser(sub) -> None:
                         "pose, coarse, all (default: %(default)s; see clearsplat.synth.realism)")
     b.add_argument("--occlusion", default="medium", choices=("low", "medium", "high"),
                    help="how many transients the worlds hold (default: %(default)s)")
+    b.add_argument("--transients", default="shots", choices=("shots", "video"),
+                   help="shots: each view's transients are its own; video: passers-by stay for "
+                        "2-5 consecutive views (street only) (default: %(default)s)")
     b.add_argument("--no-real-check", action="store_true",
                    help="skip the real-image check (Middlebury stereo pair with a pasted object)")
     b.add_argument("--ablation", action="store_true",
@@ -111,6 +114,7 @@ def run(args) -> int:
     rows = run_suite(families=args.families.split(","), views=views, seeds=seeds,
                      configs=configs, height=h, width=w, log=log, workers=args.workers,
                      address=args.address, occlusion=args.occlusion,
+                     transients=args.transients,
                      realism=[r.strip() for r in args.realism.split(",") if r.strip()])
     print(format_tables(rows))
     real = None
