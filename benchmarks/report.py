@@ -118,8 +118,16 @@ class Step:
     reused: bool = False
     extra: dict = field(default_factory=dict)
 
-    def shown(self) -> str:
-        return " ".join(shlex.quote(a) for a in self.argv)
+    def shown(self, width: int = 92) -> str:
+        """The command as typed, continued with backslashes past ``width`` columns."""
+        lines, cur = [], ""
+        for a in (shlex.quote(a) for a in self.argv):
+            if cur and len(cur) + 1 + len(a) > width:
+                lines.append(cur + " \\")
+                cur = "    " + a
+            else:
+                cur = f"{cur} {a}" if cur else a
+        return "\n".join(lines + [cur])
 
 
 def _read(path: str) -> str:
@@ -150,13 +158,13 @@ def run_step(step: Step, work: str, *, reuse: bool, log) -> Step:
                 step.result is None or os.path.exists(os.path.join(ROOT, step.result))):
             step.stdout = _read(base + ".out")
             step.seconds, step.finished, step.reused = meta["seconds"], meta["finished"], True
-            log(f"{step.name}: reused ({step.shown()})")
+            log(f"{step.name}: reused ({step.shown(10**6)})")
             return step
     if step.result:
         out_dir = os.path.dirname(os.path.join(ROOT, step.result))
         if os.path.isdir(out_dir) and out_dir.startswith(os.path.abspath(work)):
             shutil.rmtree(out_dir)
-    log(f"{step.name}: {step.shown()}")
+    log(f"{step.name}: {step.shown(10**6)}")
     t0 = time.perf_counter()
     res = subprocess.run(_exe(step.argv), cwd=ROOT, capture_output=True, text=True,
                          check=False)
@@ -171,7 +179,7 @@ def run_step(step: Step, work: str, *, reuse: bool, log) -> Step:
         json.dump({"argv": step.argv, "rc": res.returncode, "seconds": step.seconds,
                    "finished": step.finished}, f)
     if res.returncode != 0:
-        raise SystemExit(f"{step.shown()} failed (exit {res.returncode}):\n{res.stderr[-3000:]}")
+        raise SystemExit(f"{step.shown(10**6)} failed (exit {res.returncode}):\n{res.stderr[-3000:]}")
     return step
 
 
@@ -374,7 +382,7 @@ def acceptance_lines(data: dict, config: str = "default") -> list[str]:
 def _runs_line(step: Step) -> str:
     m = re.search(r"(\d+) runs in (\d+) s", step.stdout)
     runs = f"{m.group(1)} runs in {m.group(2)} s of the bench" if m else "the bench"
-    return f"{runs}, {step.seconds:.0f} s in all, finished {step.finished}"
+    return f"{runs}, {step.seconds:.0f} s in all"
 
 
 # --------------------------------------------------------------------------------------------
@@ -393,7 +401,7 @@ def section_scenarios(steps: list, mach: dict, work: str) -> str:
         "Gaussians (mean, and range over views), *test views* the PSNR of the clean-input "
         "reconstruction on held-out views (seed 0).", "",
         "```bash", st.shown(), "```", "",
-        machine_line(mach, st.finished) + f" {st.seconds:.0f} s.", "",
+        machine_line(mach, st.finished) + f" {st.seconds:.0f} s in all.", "",
         *_code(st.stdout), "",
         "Each picture (made by the same script with `--pictures docs/images`): view 0 as the "
         "model saw it (with its distractors), the render of view 0's own Gaussians, a test-view "
@@ -571,8 +579,9 @@ python benchmarks/report.py --out docs/benchmarks.md --only speed   # on a quiet
 
 Each section names the commands that reproduce its tables and the machine they ran on
 (`benchmarks/report.py` documents the grids). LPIPS and DINOv3 figures are absent: their
-weights cannot be had offline. How each departure from the paper was chosen is in
-`docs/method.md`; what changed between versions, in `CHANGELOG.md`.
+weights cannot be had offline. Durations given outside the Speed section are how long a run
+took, not speed figures. How each departure from the paper was chosen is in `docs/method.md`;
+what changed between versions, in `CHANGELOG.md`.
 """
 
 
