@@ -160,10 +160,14 @@ def run_step(step: Step, work: str, *, reuse: bool, log) -> Step:
             step.seconds, step.finished, step.reused = meta["seconds"], meta["finished"], True
             log(f"{step.name}: reused ({step.shown(10**6)})")
             return step
-    if step.result:
-        out_dir = os.path.dirname(os.path.join(ROOT, step.result))
-        if os.path.isdir(out_dir) and out_dir.startswith(os.path.abspath(work)):
+    if step.result:     # a stale output: the bench's own folder in the work dir, or the file
+        result = os.path.abspath(os.path.join(ROOT, step.result))
+        out_dir = os.path.dirname(result)
+        if os.path.dirname(out_dir) == os.path.abspath(work) and os.path.isdir(out_dir) \
+                and os.path.basename(out_dir) == step.name:
             shutil.rmtree(out_dir)
+        elif os.path.isfile(result):
+            os.remove(result)
     log(f"{step.name}: {step.shown(10**6)}")
     t0 = time.perf_counter()
     res = subprocess.run(_exe(step.argv), cwd=ROOT, capture_output=True, text=True,
@@ -199,7 +203,8 @@ class Grid:
 
 
 def grids(work: str, quick: bool) -> Grid:
-    w = os.path.relpath(work, ROOT)
+    work = os.path.abspath(work)
+    w = os.path.relpath(work, ROOT) if work.startswith(ROOT + os.sep) else work
     if quick:
         q = [Step("quality", ["clearsplat", "bench", "--realism", "plain", "--views", "4",
                               "--families", "object", "--seeds", "0",
@@ -520,14 +525,14 @@ def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
 STATIC = {
     "dense": """## Dense captures
 
-Two options for captures of many views, both off by default: `neighbours=K` (each camera's
-renders hold only the Gaussians of its K most co-visible views and of the views it verifies;
-exact with at most K + 1 views) and `verify_views="mutual"` (verification views ranked by the
-field of view they share both ways). What they answer and their measurements (32 views,
-`--occlusion high`, and 16 views on the realism scenarios) are in `docs/method.md`, "Dense
-captures". `prune_views` never changes the output; it is off because on the stand-in dense
-captures, where the proposals cover about half of every image, the pruning pass cost more than
-it saved (measured with the 0.1.0 default, `CHANGELOG.md`).
+Options for captures of many views, all off by default: `neighbours=K` (each camera's renders
+hold only the Gaussians of its K most co-visible views and of the views it verifies; exact with
+at most K + 1 views), `verify_views="mutual"` (verification views ranked by the field of view
+they share both ways) and, for the frames of a video, `leave_out=R` (the R views on each side
+also left out of a view's exclusion render). What they answer and their measurements are in
+`docs/method.md`, "Dense captures". `prune_views` never changes the output; it is off because
+on the stand-in dense captures, where the proposals cover about half of every image, the
+pruning pass cost more than it saved (measured with the 0.1.0 default, `CHANGELOG.md`).
 """,
     "gpu": """## On a GPU
 

@@ -148,6 +148,26 @@ def test_speed_waits_for_a_quiet_machine(report):
     assert not quiet and "lowest 0.30" in text
 
 
+def test_a_step_replaces_its_own_output_only(tmp_path, report):
+    work = tmp_path / "work"
+    (work / "quality").mkdir(parents=True)
+    (work / "quality" / "results.json").write_text("{}")
+    (work / "quality.out").write_text("kept")
+    rows = work / "speed-object.rows"
+    rows.write_text("stale")
+    script = f"open({str(rows)!r}, 'w').write('new')"
+    step = report.Step("speed-object", ["python", "-c", script], result=str(rows))
+    report.run_step(step, str(work), reuse=False, log=lambda s: None)
+    assert rows.read_text() == "new"
+    assert (work / "quality" / "results.json").exists() and (work / "quality.out").exists()
+    # --reuse takes the stored output of the same command and runs nothing.
+    rows.write_text("stored")
+    again = report.run_step(report.Step("speed-object", ["python", "-c", script],
+                                        result=str(rows)), str(work), reuse=True,
+                            log=lambda s: None)
+    assert again.reused and rows.read_text() == "stored"
+
+
 def test_only_rejects_an_unknown_section(tmp_path, report):
     with pytest.raises(SystemExit):
         report.main(["--out", str(tmp_path / "p.md"), "--only", "qualty"])
