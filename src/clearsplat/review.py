@@ -529,7 +529,7 @@ def edit_filter_output(filtered, out, *, reject=(), accept=(), keep_all: bool = 
         that is not a filter output or holds no candidate data, an ``out`` that may not be
         written. Nothing is written then.
     """
-    from .io import save_bundle_cameras, write_ply
+    from .io import save_bundle_cameras
     from .io.bundle import load_cameras
     from .io.output import check_output_folder, output_folder
 
@@ -571,17 +571,7 @@ def edit_filter_output(filtered, out, *, reject=(), accept=(), keep_all: bool = 
     cameras, image_paths = load_cameras(folder)
     own_images = _has_own_images(folder) if copy_images is None else copy_images
     with output_folder(out, inputs=[folder], force=force, command="edit") as tmp:
-        keep = ~removed
-        if keep_all:
-            kept = scene.with_opacities(np.where(keep, scene.gaussians.opacities, 0.0))
-        else:
-            kept = scene.subset(keep)
-        write_ply(tmp / "gaussians.ply", kept.gaussians, view_id=kept.view_id,
-                  pixel_id=kept.pixel_id)
-        gone = scene.subset(removed)
-        write_ply(tmp / REMOVED_FILE, gone.gaussians, view_id=gone.view_id,
-                  pixel_id=gone.pixel_id)
-        np.save(tmp / "removed.npy", removed)
+        write_removal(tmp, scene, removed, keep_all=keep_all)
         write_candidates(tmp / CANDIDATES_FILE, output.sets, num_gaussians=output.sets
                          .num_gaussians)
         with open(tmp / "summary.json", "w") as f:
@@ -589,6 +579,25 @@ def edit_filter_output(filtered, out, *, reject=(), accept=(), keep_all: bool = 
         save_bundle_cameras(tmp, cameras, image_paths, located_at=out, copy_images=own_images,
                             render=scene.render_settings)
     return record
+
+
+def write_removal(folder, scene, removed: np.ndarray, *, keep_all: bool = False) -> None:
+    """Write a filter output's removal into ``folder``: ``gaussians.ply`` (the kept
+    Gaussians; with ``keep_all`` every one, the removed at opacity 0), ``removed.npy``
+    ((N,) bool) and ``removed.ply`` (the removed Gaussians as they were, so that a rejection
+    can restore them). Shared by ``clearsplat filter`` and ``clearsplat edit``."""
+    from .io import write_ply
+    removed = np.ascontiguousarray(removed, dtype=bool)
+    if keep_all:
+        kept = scene.with_opacities(np.where(removed, 0.0, scene.gaussians.opacities))
+    else:
+        kept = scene.subset(~removed)
+    write_ply(os.path.join(folder, "gaussians.ply"), kept.gaussians, view_id=kept.view_id,
+              pixel_id=kept.pixel_id)
+    np.save(os.path.join(folder, "removed.npy"), removed)
+    gone = scene.subset(removed)
+    write_ply(os.path.join(folder, REMOVED_FILE), gone.gaussians, view_id=gone.view_id,
+              pixel_id=gone.pixel_id)
 
 
 def edit_command(filtered, out, *, reject=(), accept=(), keep_all: bool = False,

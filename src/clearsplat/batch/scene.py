@@ -15,7 +15,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
 
 from ..errors import ClearsplatError
 
@@ -54,24 +53,13 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
     copy_images : bool, default False
         Copy the input images into the folder instead of referring to them.
     """
-    from ..io import load_cameras, save_bundle_cameras, write_ply
+    from ..io import load_cameras, save_bundle_cameras
+    from ..review import CANDIDATES_FILE, write_candidates, write_removal
 
-    if keep_all:
-        kept = result.apply(scene)
-        write_ply(os.path.join(folder, "gaussians.ply"), kept.gaussians,
-                  view_id=kept.view_id, pixel_id=kept.pixel_id)
-    else:
-        sub = scene.subset(result.keep)
-        write_ply(os.path.join(folder, "gaussians.ply"), sub.gaussians,
-                  view_id=sub.view_id, pixel_id=sub.pixel_id)
-    np.save(os.path.join(folder, "removed.npy"), np.ascontiguousarray(result.removed, dtype=bool))
-    # what 'clearsplat edit' needs to flip a verdict: the candidates, the removed Gaussians
-    from ..review import CANDIDATES_FILE, REMOVED_FILE, write_candidates
+    write_removal(folder, scene, result.removed, keep_all=keep_all)
+    # what 'clearsplat edit' needs to flip a verdict: every candidate's Gaussians
     write_candidates(os.path.join(folder, CANDIDATES_FILE), result.candidates,
                      num_gaussians=len(scene))
-    gone = scene.subset(result.removed)
-    write_ply(os.path.join(folder, REMOVED_FILE), gone.gaussians, view_id=gone.view_id,
-              pixel_id=gone.pixel_id)
     with open(os.path.join(folder, "summary.json"), "w") as f:
         json.dump(result.summary(), f, indent=1)
     if source is not None:
