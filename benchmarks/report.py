@@ -484,6 +484,12 @@ def _code(text: str) -> list[str]:
     return ["```", *text.rstrip("\n").splitlines(), "```"]
 
 
+def _step_lines(st: Step, mach: dict, after: str = "") -> list[str]:
+    """A measuring step on the page: its command, the machine and its output."""
+    return ["```bash", st.shown(), "```", "", machine_line(mach, st.finished) + after, "",
+            *_code(st.stdout), ""]
+
+
 def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
     by = {s.name: s for s in steps}
     lines = [
@@ -501,24 +507,19 @@ def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
             "time goes*: medians of the steps.", ""]
         for name in ("speed-object", "speed-street"):
             if name in by:
-                st = by[name]
-                lines += ["```bash", st.shown(), "```", "",
-                          machine_line(mach, st.finished) + f" {st.seconds:.0f} s in all.", "",
-                          *_code(st.stdout), ""]
+                lines += _step_lines(by[name], mach, f" {by[name].seconds:.0f} s in all.")
     if "speed-cli" in by:
         st = by["speed-cli"]
         lines += ["### `clearsplat filter`, whole process", "",
                   "A saved 16-view object bundle at 128x192 (393,216 Gaussians), filtered by "
                   "the command in a fresh process each time (imports, loading, filtering, "
-                  "writing).", "", "```bash", st.shown(), "```", "",
-                  machine_line(mach, st.finished), "", *_code(st.stdout), ""]
+                  "writing).", "", *_step_lines(st, mach)]
     if "speed-render" in by:
         st = by["speed-render"]
         lines += ["### Rendering", "",
                   "The CPU rasterizer: 8 views of pixel-aligned Gaussians at 256x448 (917,504 "
                   "Gaussians) rendered from each input camera; medians over cameras and "
-                  "repeats.", "", "```bash", st.shown(), "```", "",
-                  machine_line(mach, st.finished), "", *_code(st.stdout), ""]
+                  "repeats.", "", *_step_lines(st, mach)]
     return wrap(lines)
 
 
