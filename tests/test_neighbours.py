@@ -8,7 +8,13 @@ import pytest
 from clearsplat.errors import ClearsplatError
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
-from clearsplat.filter.neighbours import covisibility, neighbourhoods
+from clearsplat.filter.neighbours import covisibility, view_plan
+
+
+def neighbourhoods(scene, k, verify):
+    """The views each camera holds with ``neighbours=k`` and the paper's verification views."""
+    plan = view_plan(scene, neighbours=k, verify_views="centres", num_verify_views=verify)
+    return None if plan is None else plan.hoods
 from clearsplat.render import prepare, render
 from clearsplat.synth.realism import realistic_reconstruction
 from clearsplat.synth.worlds import make_world
@@ -169,7 +175,6 @@ def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere
 def test_neighbourhoods_skip_the_views_left_out():
     world = make_world("street", num_views=8, seed=4, height=48, width=80, transients="video")
     scene, _ = realistic_reconstruction(world, "plain", seed=4)
-    from clearsplat.filter.neighbours import view_plan
     plan = view_plan(scene, neighbours=2, verify_views="mutual", num_verify_views=3, leave_out=2)
     for v, vs in enumerate(plan.verifiers):
         assert len(vs) == 3 and all(abs(j - v) > 2 for j in vs)

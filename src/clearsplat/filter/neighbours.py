@@ -25,7 +25,7 @@ import numpy as np
 
 from ..scene import Scene
 
-__all__ = ["covisibility", "ViewPlan", "view_plan", "neighbourhoods"]
+__all__ = ["covisibility", "ViewPlan", "view_plan"]
 
 #: Gaussians sampled per view for the co-visibility (evenly over the view's members).
 _SAMPLES = 4096
@@ -104,15 +104,3 @@ def view_plan(scene: Scene, *, neighbours: int | None, verify_views: str,
         for j in verifiers[v]:
             hoods[j][v] = True
     return ViewPlan(hoods, verifiers)
-
-
-def neighbourhoods(scene: Scene, neighbours: int | None, num_verify_views: int
-                   ) -> list[np.ndarray] | None:
-    """Per camera j, the (V,) bool views its renders hold (S(j), see the module), or None when
-    every view's renders hold every view (``neighbours`` None or at least V - 1).
-
-    Ties in co-visibility go to the lower view index.
-    """
-    plan = view_plan(scene, neighbours=neighbours, verify_views="centres",
-                     num_verify_views=num_verify_views)
-    return None if plan is None else plan.hoods

@@ -74,14 +74,11 @@ class RoundState:
               report: Progress) -> "RoundState":
         """The state of a round on ``scene``, its ``"proposal"`` stage timed from now."""
         index = ViewIndex(scene)
-        n, v = len(scene), scene.num_views
+        v = scene.num_views
         gap = np.abs(np.arange(v)[:, None] - np.arange(v)[None, :])
         left_out = gap <= config.leave_out
-        if config.leave_out == 0:
-            own = [index.mask(i, n) for i in range(v)]
-        else:
-            own = [left_out[i][scene.view_id] for i in range(v)]
-        return cls(scene, config, backend, index, own=own,
+        return cls(scene, config, backend, index,
+                   own=[left_out[i][scene.view_id] for i in range(v)],
                    tau1=extractor.tau1 if config.tau1 is None else config.tau1,
                    tau2=extractor.tau2 if config.tau2 is None else config.tau2,
                    report=report, left_out=left_out)

@@ -312,11 +312,11 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
     config, views, own = state.config, state.views, state.own
     plan = state.plan
     if plan is not None and plan.verifiers is not None:
-        views_of = {i: [j for j in vs if not state.left_out[j, i]]
-                    for i, vs in enumerate(plan.verifiers)}
+        views_of = dict(enumerate(plan.verifiers))     # never views left out (view_plan)
     else:
-        # A view that leaves view i's Gaussians out of its base (``leave_out``) cannot verify.
-        seen = np.where(state.left_out, -1, renders.seen) if config.leave_out else renders.seen
+        # A view that leaves view i's Gaussians out of its base (itself, and with
+        # ``leave_out`` its neighbours) cannot verify it.
+        seen = np.where(state.left_out, -1, renders.seen)
         views_of = {i: top_views(seen, i, config.num_verify_views)
                     for i in range(state.num_views)}
     all_keep = np.ones(state.n, dtype=bool)
