@@ -49,6 +49,7 @@ ABLATIONS = {
     "one-refine-pass": "default+refine_passes=1",
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
+    "all-regions": "default+later_rounds=all",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",
