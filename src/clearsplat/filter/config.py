@@ -492,7 +492,7 @@ PRESETS = {
                                 depth_scale_reach=0, rounds=1, refine_color_grow=None,
                                 later_rounds="all"),
     # Today's default without the approximations that make it faster: the reference every
-    # one of them is measured against (docs/method.md, "Speed").
+    # one of them is measured against (docs/method.md, `later_rounds="changed"`).
     "exact": FilterConfig(later_rounds="all"),
 }
 
