@@ -115,7 +115,8 @@ def test_every_view_a_neighbour_is_the_exact_filter(street):
 def test_bounded_neighbourhoods_run_and_change_only_what_the_renders_hold(street):
     scene, truth = street
     ex = get_extractor("local")
-    res = filter_distractors(scene, config=FilterConfig(neighbours=3), extractor=ex)
+    res = filter_distractors(scene, config=FilterConfig(neighbours=3, verify_views="centres"),
+                             extractor=ex)
     assert res.removed[truth].mean() > 0.5          # still finds most distractors
     assert res.removed[~truth].mean() < 0.02
     # each candidate's verifying views hold its view
@@ -186,3 +187,46 @@ def test_neighbourhoods_skip_the_views_left_out():
                                                          leave_out=2, rounds=1),
                              extractor=get_extractor("local"))
     assert res.candidates and all(len(c.verify_views) == 3 for c in res.candidates)
+
+
+def test_dense_options_resolve_auto_by_view_count():
+    from clearsplat.filter.neighbours import DENSE_MIN_VIEWS, DENSE_NEIGHBOURS, dense_options
+    below, at = DENSE_MIN_VIEWS - 1, DENSE_MIN_VIEWS
+    assert dense_options(below, "auto", "auto") == (None, "centres")
+    assert dense_options(at, "auto", "auto") == (DENSE_NEIGHBOURS, "mutual")
+    assert dense_options(at, "auto", "centres") == (DENSE_NEIGHBOURS, "centres")
+    assert dense_options(below, 4, "auto") == (4, "mutual")       # explicit K: mutual V_i
+    assert dense_options(at, None, "auto") == (None, "centres")   # explicit None: the paper's
+    assert dense_options(at, 5, "centres") == (5, "centres")
+    for preset in ("paper", "paper-local"):
+        cfg = FilterConfig.preset(preset)
+        assert dense_options(100, cfg.neighbours, cfg.verify_views) == (None, "centres")
+    assert FilterConfig(neighbours="auto").neighbours == "auto"
+    with pytest.raises(ClearsplatError) as e:
+        FilterConfig(neighbours="many")
+    assert e.value.field == "neighbours"
+
+
+def test_auto_is_the_explicit_options_it_resolves_to(monkeypatch):
+    from clearsplat.filter import neighbours as nb
+    ex = get_extractor("local")
+    world = make_world("street", num_views=6, seed=1, height=32, width=64)
+    scene, _ = realistic_reconstruction(world, "plain", seed=1)
+    auto = FilterConfig(neighbours="auto", verify_views="auto")
+    # Below the threshold: the paper's views, bit for bit.
+    a = filter_distractors(scene, config=auto, extractor=ex)
+    b = filter_distractors(scene, config=FilterConfig(neighbours=None, verify_views="centres"),
+                           extractor=ex)
+    assert np.array_equal(a.keep, b.keep)
+    assert [c.record() for c in a.candidates] == [c.record() for c in b.candidates]
+    # From the threshold on (lowered to this scene's 6 views): 3 neighbours, mutual V_i.
+    monkeypatch.setattr(nb, "DENSE_MIN_VIEWS", 6)
+    monkeypatch.setattr(nb, "DENSE_NEIGHBOURS", 3)
+    a = filter_distractors(scene, config=auto, extractor=ex)
+    b = filter_distractors(scene, config=FilterConfig(neighbours=3, verify_views="mutual"),
+                           extractor=ex)
+    c = filter_distractors(scene, config=FilterConfig(neighbours=None, verify_views="centres"),
+                           extractor=ex)
+    assert np.array_equal(a.keep, b.keep)
+    assert [x.record() for x in a.candidates] == [x.record() for x in b.candidates]
+    assert [x.record() for x in a.candidates] != [x.record() for x in c.candidates]

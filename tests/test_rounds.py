@@ -77,7 +77,7 @@ def street():
 def test_exact_preset_is_every_region_again(street):
     ex = get_extractor("local")
     exact = FilterConfig.preset("exact")
-    assert exact == FilterConfig(later_rounds="all")
+    assert exact == FilterConfig(later_rounds="all", neighbours=None, verify_views="centres")
     a = filter_distractors(street, config=exact, extractor=ex)
     b = filter_distractors(street, config=FilterConfig(), extractor=ex)
     # The second round runs in both; the default takes on only what the first one changed.

@@ -50,6 +50,7 @@ ABLATIONS = {
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
     "all-regions": "default+later_rounds=all",
+    "every-view": "default+neighbours=null+verify_views=centres",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",

@@ -303,8 +303,10 @@ class FilterConfig:
         i's own, and which do not verify view i. For video: a passer-by who stays for a few
         consecutive frames is in the neighbouring frames' predictions too, where R_i^-i would
         show him instead of the surface behind. 0: the paper (only view i's own).
-    verify_views : {"centres", "mutual"}
-        How each view's verification views V_i are chosen. ``"centres"``: the paper, the
+    verify_views : {"auto", "centres", "mutual"}
+        How each view's verification views V_i are chosen. ``"auto"``: ``"mutual"`` where
+        ``neighbours`` (as ``"auto"`` resolves it) bounds the neighbourhoods, ``"centres"``
+        otherwise. ``"centres"``: the paper, the
         ``num_verify_views`` views that see the most centres of its Gaussians inside their
         image (ties to the lower index). ``"mutual"``: those that share the most of its field
         of view both ways (:func:`clearsplat.filter.neighbours.covisibility`, ``C[j, i] +
@@ -318,6 +320,9 @@ class FilterConfig:
         (:mod:`clearsplat.filter.neighbours`); the work then grows with views times
         ``neighbours`` instead of the square of the views. Exact (the same output as None)
         while the scene has at most ``neighbours + 1`` views. None: every view, the paper.
+        ``"auto"``: 7 from 24 views on, every view below
+        (:func:`clearsplat.filter.neighbours.dense_options`; measured in docs/method.md,
+        "Dense captures").
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
         render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
@@ -361,8 +366,8 @@ class FilterConfig:
     depth_scale_reach: int = 0
     rounds: int | str = "auto"
     later_rounds: Literal["changed", "all"] = "changed"
-    neighbours: int | None = None
-    verify_views: Literal["centres", "mutual"] = "centres"
+    neighbours: int | None | str = "auto"
+    verify_views: Literal["auto", "centres", "mutual"] = "auto"
     leave_out: int = 0
 
     def __post_init__(self):
@@ -464,8 +469,8 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "depth_scale_reach": FieldSpec("integer", 0),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "later_rounds": FieldSpec("choice", choices=("changed", "all")),
-    "neighbours": FieldSpec("integer", 1, optional=True),
-    "verify_views": FieldSpec("choice", choices=("centres", "mutual")),
+    "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
+    "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
     "leave_out": FieldSpec("integer", 0),
 }
 
@@ -481,7 +486,7 @@ PRESETS = {
                           min_relative_score=0.0, refine_passes=1,
                           expand_connected=False, refine_tolerance_depth=True,
                           depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                          later_rounds="all"),
+                          later_rounds="all", neighbours=None, verify_views="centres"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -490,10 +495,11 @@ PRESETS = {
                                 min_relative_score=0.0, refine_passes=1,
                                 expand_connected=False, refine_tolerance_depth=True,
                                 depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                                later_rounds="all"),
-    # Today's default without the approximations that make it faster: the reference every
-    # one of them is measured against (docs/method.md, `later_rounds="changed"`).
-    "exact": FilterConfig(later_rounds="all"),
+                                later_rounds="all", neighbours=None, verify_views="centres"),
+    # Today's default without the approximations that make it faster (later rounds on the
+    # changed regions, bounded neighbourhoods from 24 views on): the reference every one of
+    # them is measured against (docs/method.md, `later_rounds="changed"`, "Dense captures").
+    "exact": FilterConfig(later_rounds="all", neighbours=None, verify_views="centres"),
 }
 
 

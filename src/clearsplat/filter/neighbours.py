@@ -72,6 +72,25 @@ class ViewPlan:
     verifiers: list | None
 
 
+#: ``neighbours="auto"``: bounded neighbourhoods of this many views ...
+DENSE_NEIGHBOURS = 7
+#: ... from this many input views on (docs/method.md, "Dense captures").
+DENSE_MIN_VIEWS = 24
+
+
+def dense_options(num_views: int, neighbours, verify_views: str) -> tuple[int | None, str]:
+    """``FilterConfig.neighbours`` and ``verify_views`` for a scene of ``num_views`` views,
+    with ``"auto"`` resolved: :data:`DENSE_NEIGHBOURS` neighbours from :data:`DENSE_MIN_VIEWS`
+    views on, every view below; mutual verification views where the neighbourhoods bound
+    anything (fewer neighbours than other views), the paper's V_i otherwise."""
+    if neighbours == "auto":
+        neighbours = DENSE_NEIGHBOURS if num_views >= DENSE_MIN_VIEWS else None
+    if verify_views == "auto":
+        bounded = neighbours is not None and neighbours < num_views - 1
+        verify_views = "mutual" if bounded else "centres"
+    return neighbours, verify_views
+
+
 def view_plan(scene: Scene, *, neighbours: int | None, verify_views: str,
               num_verify_views: int, leave_out: int = 0) -> ViewPlan | None:
     """The :class:`ViewPlan` of ``FilterConfig.neighbours`` and ``verify_views``; None for the

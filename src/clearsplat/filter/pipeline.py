@@ -33,7 +33,7 @@ from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
 from .refine import refine
-from .neighbours import view_plan
+from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
 from .rounds import Carry, in_round, keep_changed_regions, merge_round
@@ -89,7 +89,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
     rounds = config.rounds
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
-    plan = view_plan(scene, neighbours=config.neighbours, verify_views=config.verify_views,
+    neighbours, verify_views = dense_options(scene.num_views, config.neighbours,
+                                             config.verify_views)
+    plan = view_plan(scene, neighbours=neighbours, verify_views=verify_views,
                      num_verify_views=config.num_verify_views, leave_out=config.leave_out)
     result, carry = run_round(scene, config, extractor, backend, report, hold=rounds > 1,
                               plan=plan)
