@@ -32,6 +32,9 @@ __all__ = ["ViewTensors", "composite", "BUDGET"]
 _PIX = TILE * TILE
 #: Fragments (and tile-list entries) one chunk may hold: about 40 bytes each at the peak.
 BUDGET = 1 << 22
+#: Blocks of tile-list positions composited one after another (front to back): most pixels
+#: stop within the first, and the later ones then hold few entries.
+BLOCKS = (0, 128, 512, 2048, 1 << 62)
 
 
 class ViewTensors(NamedTuple):
@@ -99,7 +102,8 @@ def composite(torch, vt: ViewTensors, tile, *, keeps=None, keep_of=None, removed
         if not parts:
             e = torch.empty(0, dtype=torch.long, device=dev)
             return e, e, e, torch.empty(0, dtype=torch.float32, device=dev)
-        return tuple(torch.cat([p[i] for p in parts]) for i in range(4))
+        seg, gid, weight = (torch.cat([p[i] for p in parts]) for i in range(3))
+        return seg // _PIX, seg % _PIX, gid, weight
     if not parts:
         return (torch.zeros((n, _PIX, 4), device=dev), torch.ones((n, _PIX), device=dev))
     return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
@@ -131,74 +135,113 @@ def _chunk(torch, vt, tile, lens, t0, t1, keeps, keep_of, removed, removal_of, r
         r = region[task]
         lx0, lx1 = torch.maximum(lx0, r[:, 0]), torch.minimum(lx1, r[:, 1])
         ly0, ly1 = torch.maximum(ly0, r[:, 2]), torch.minimum(ly1, r[:, 3])
-    bw = (lx1 - lx0 + 1).clamp_min(0)
-    count = torch.where(inc, bw * (ly1 - ly0 + 1).clamp_min(0), 0)
+    count = torch.where(inc, (lx1 - lx0 + 1).clamp_min(0) * (ly1 - ly0 + 1).clamp_min(0), 0)
+    # Only the entries with fragments go on (a region leaves out most of a tile's list).
+    e = torch.nonzero(count).squeeze(1)
+    task, ids, j, count = task[e] - t0, ids[e], j[e], count[e]
+    lx0, lx1, ly0, ly1 = lx0[e], lx1[e], ly0[e], ly1[e]
+    x0, y0 = tx0[e] + lx0, ty0[e] + ly0
     # Split further where the fragments of these tasks exceed the budget.
-    per_task = torch.zeros(t1 - t0, dtype=torch.long, device=dev).index_add_(0, task - t0, count)
-    ends = [0] + torch.cumsum(lc, 0).tolist()
+    per_task = torch.zeros(t1 - t0, dtype=torch.long, device=dev).index_add_(0, task, count)
+    ranges = _ranges(torch, per_task, budget)
+    cuts = torch.tensor([a for a, _ in ranges] + [t1 - t0], device=dev)
+    ends = torch.searchsorted(task, cuts).tolist()
     out = []
-    for a, b in _ranges(torch, per_task, budget):
-        sl = slice(ends[a], ends[b])
-        out.append(_fragments(torch, vt, t0 + a, t0 + b, task[sl], ids[sl], tx0[sl], ty0[sl],
-                              lx0[sl], ly0[sl], bw[sl], count[sl], pixel_ok, record))
+    for (a, b), e0, e1 in zip(ranges, ends[:-1], ends[1:]):
+        sl = slice(e0, e1)
+        entries = (task[sl] - a, ids[sl], j[sl], x0[sl], y0[sl], lx0[sl], lx1[sl], ly0[sl],
+                   ly1[sl], count[sl])
+        ok = None if pixel_ok is None else pixel_ok[t0 + a:t0 + b]
+        o = _composite_entries(torch, vt, b - a, entries, ok, record)
+        out.append((o[0] + (t0 + a) * _PIX, *o[1:]) if record else o)
     if record:
-        return tuple(torch.cat([o[i] for o in out]) for i in range(4))
+        return tuple(torch.cat([o[i] for o in out]) for i in range(3))
     return torch.cat([o[0] for o in out]), torch.cat([o[1] for o in out])
 
 
-def _fragments(torch, vt, t0, t1, task, ids, tx0, ty0, lx0, ly0, bw, count, pixel_ok, record):
-    """Composite the fragments of tasks ``t0:t1`` (their entries given)."""
+def _segment_sums(torch, values, per):
+    """Sums of ``values`` (..., F) float64 over consecutive segments of ``per`` (S,) items."""
+    run = torch.zeros((*values.shape[:-1], values.shape[-1] + 1), dtype=torch.float64,
+                      device=values.device)
+    run[..., 1:] = torch.cumsum(values, -1)
+    end = torch.cumsum(per, 0)
+    return run[..., end] - run[..., end - per]
+
+
+def _composite_entries(torch, vt, num_tasks, entries, pixel_ok, record):
+    """Composite ``num_tasks`` tasks from their tile-list entries, block by block of list
+    positions (:data:`BLOCKS`), carrying each pixel's transmittance and sums from one block
+    to the next; a pixel that has stopped takes no fragment of a later block, and an entry
+    none of whose pixels is still compositing makes none."""
+    task, ids, j, x0, y0, lx0, lx1, ly0, ly1, count = entries
     dev = vt.geom.device
     f = lambda c: _f(torch, c, dev)  # noqa: E731
-    live = torch.nonzero(count).squeeze(1)          # entries with fragments
-    count = count[live]
-    # Per entry: its first fragment, box width, pixel origin and pixel-slot base, gathered
-    # once per fragment as one row.
-    first = torch.cumsum(count, 0) - count
-    x0, y0 = tx0[live] + lx0[live], ty0[live] + ly0[live]
-    slot = (task[live] - t0) * _PIX + ly0[live] * TILE + lx0[live]
-    rows = torch.stack([first, bw[live], x0, y0, slot, live], 1)
-    ent = torch.repeat_interleave(torch.arange(live.shape[0], device=dev), count)
-    e = rows[ent]
-    k = torch.arange(ent.shape[0], device=dev) - e[:, 0]
-    col, row = k % e[:, 1], k // e[:, 1]
-    seg = e[:, 4] + row * TILE + col                # (task - t0) * 256 + pixel
-    g = vt.geom[ids[e[:, 5]]]
-    # The 3DGS per-pixel test, in the C++ code's float32 operations and order.
-    dx = g[:, 0] - ((e[:, 2] + col).float() + f(0.5))
-    dy = g[:, 1] - ((e[:, 3] + row).float() + f(0.5))
-    power = f(-0.5) * (g[:, 2] * dx * dx + g[:, 4] * dy * dy) - g[:, 3] * dx * dy
-    alpha = g[:, 5] * exp_nonpositive(torch, power)
-    alpha = torch.where(alpha < f(MAX_ALPHA), alpha, f(MAX_ALPHA))
-    on = (power <= f(0.0)) & (alpha >= f(MIN_ALPHA))
-    if pixel_ok is not None:
-        on &= pixel_ok.view(-1)[seg + t0 * _PIX]
-    keep = torch.nonzero(on).squeeze(1)
-    seg, alpha, gid = seg[keep], alpha[keep], ids[e[keep, 5]]
-    # Per pixel, front to back (fragments were made in list order: a stable sort keeps it).
-    seg, order = torch.sort(seg, stable=True)
-    alpha, gid = alpha[order], gid[order]
-    s = (t1 - t0) * _PIX
-    per = torch.bincount(seg, minlength=s)
-    first = (torch.cumsum(per, 0) - per)[seg]       # each fragment's pixel's first fragment
-    # Transmittance before and after each fragment: the product of 1 - alpha over the pixel's
-    # earlier fragments, as a float64 running sum of logarithms restarted at every pixel.
-    la = torch.log1p(-alpha.double())
-    run = torch.cumsum(la, 0) - la                   # sum over all earlier fragments
-    log_before = run - run[first]
-    before = torch.exp(log_before).float()
-    after = torch.exp(log_before + la).float()
-    add = after >= f(MIN_TRANSMITTANCE)
-    weight = alpha * before
+    s = num_tasks * _PIX
+    log_t = torch.zeros(s, dtype=torch.float64, device=dev)      # log transmittance so far
+    sums = torch.zeros((4, s), dtype=torch.float64, device=dev)  # c alpha T (RGB), z alpha T
+    stopped = (torch.zeros(s, dtype=torch.bool, device=dev) if pixel_ok is None
+               else ~pixel_ok.reshape(-1))
+    kept = []
+    for lo, hi in zip(BLOCKS[:-1], BLOCKS[1:]):
+        e = torch.nonzero((j >= lo) & (j < hi)).squeeze(1)
+        if lo > 0:                   # entries with a pixel still compositing in their box
+            e = e[_any_live(torch, ~stopped, task[e], lx0[e], lx1[e], ly0[e], ly1[e])]
+        n = count[e]
+        ent = e[torch.repeat_interleave(torch.arange(e.shape[0], device=dev), n)]
+        k = torch.arange(ent.shape[0], device=dev) - (torch.cumsum(n, 0) - n).repeat_interleave(n)
+        w = lx1[ent] - lx0[ent] + 1
+        col, row = k % w, k // w
+        seg = task[ent] * _PIX + (ly0[ent] + row) * TILE + lx0[ent] + col
+        go = torch.nonzero(~stopped[seg]).squeeze(1)   # pixels that still composite
+        ent, col, row, seg = ent[go], col[go], row[go], seg[go]
+        g = vt.geom[ids[ent]]
+        # The 3DGS per-pixel test, in the C++ code's float32 operations and order.
+        dx = g[:, 0] - ((x0[ent] + col).float() + f(0.5))
+        dy = g[:, 1] - ((y0[ent] + row).float() + f(0.5))
+        power = f(-0.5) * (g[:, 2] * dx * dx + g[:, 4] * dy * dy) - g[:, 3] * dx * dy
+        alpha = g[:, 5] * exp_nonpositive(torch, power)
+        alpha = torch.where(alpha < f(MAX_ALPHA), alpha, f(MAX_ALPHA))
+        on = torch.nonzero((power <= f(0.0)) & (alpha >= f(MIN_ALPHA)))
+        on = on.squeeze(1)
+        seg, alpha, gid = seg[on], alpha[on], ids[ent[on]]
+        # Per pixel, front to back (made in list order: a stable sort keeps it).
+        seg, order = torch.sort(seg, stable=True)
+        alpha, gid = alpha[order], gid[order]
+        per = torch.bincount(seg, minlength=s)
+        first = (torch.cumsum(per, 0) - per)[seg]
+        # Transmittance before and after each fragment: the pixel's carried product times
+        # the product of 1 - alpha over its earlier fragments here, as float64 logarithms.
+        la = torch.log1p(-alpha.double())
+        run = torch.cumsum(la, 0) - la
+        log_before = log_t[seg] + (run - run[first])
+        before = torch.exp(log_before).float()
+        add = torch.exp(log_before + la).float() >= f(MIN_TRANSMITTANCE)
+        weight = torch.where(add, alpha * before, f(0.0))
+        terms = vt.colour[gid].T * weight                          # (4, F)
+        sums += _segment_sums(torch, terms.double(), per)
+        log_t += _segment_sums(torch, torch.where(add, la, 0.0), per)
+        stopped[seg[~add]] = True
+        if record:
+            kept.append((seg[add], gid[add], weight[add]))
     if record:
-        return seg[add] // _PIX + t0, seg[add] % _PIX, gid[add], weight[add]
-    # The final transmittance: the last product at or above 1e-4 (products only decrease).
-    trans = torch.ones(s, device=dev).scatter_reduce_(0, seg[add], after[add], "amin")
-    # Per-pixel sums of c alpha T and z alpha T: differences of a float64 running sum over the
-    # sorted fragments (deterministic on every device, unlike scattered atomic adds).
-    terms = vt.colour[gid].T * torch.where(add, weight, f(0.0))       # (4, F)
-    run = torch.zeros((4, seg.shape[0] + 1), dtype=torch.float64, device=dev)
-    run[:, 1:] = torch.cumsum(terms.double(), 1)
-    end = torch.cumsum(per, 0)
-    sums = (run[:, end] - run[:, end - per]).float().T
-    return sums.reshape(t1 - t0, _PIX, 4), trans.view(t1 - t0, _PIX)
+        seg = torch.cat([x[0] for x in kept])
+        seg, order = torch.sort(seg, stable=True)     # by pixel, blocks front to back
+        return seg, torch.cat([x[1] for x in kept])[order], torch.cat([x[2] for x in kept])[order]
+    trans = torch.exp(log_t).float()
+    return sums.float().T.reshape(num_tasks, _PIX, 4), trans.view(num_tasks, _PIX)
+
+
+def _any_live(torch, live, task, lx0, lx1, ly0, ly1):
+    """Per entry: whether its rectangle (tile-local, inclusive, maybe empty) holds a pixel of
+    ``live`` ((T * 256,) bool), from each task's summed-area table."""
+    t = live.shape[0] // _PIX
+    table = torch.zeros((t, TILE + 1, TILE + 1), dtype=torch.int32, device=live.device)
+    table[:, 1:, 1:] = live.view(t, TILE, TILE).int().cumsum(1).cumsum(2)
+    flat = table.view(-1)
+    base = task * (TILE + 1) ** 2
+    x1, y1 = (lx1 + 1).clamp_min(lx0), (ly1 + 1).clamp_min(ly0)
+
+    def at(y, x):
+        return flat[base + y * (TILE + 1) + x]
+
+    return (at(y1, x1) - at(ly0, x1) - at(y1, lx0) + at(ly0, lx0)) > 0
