@@ -67,7 +67,7 @@ def _ranges(torch, weights, budget: int) -> list[tuple[int, int]]:
 
 def composite(torch, vt: ViewTensors, tile, *, keeps=None, keep_of=None, removed=None,
               removal_of=None, region=None, pixel_ok=None, record: bool = False,
-              budget: int = BUDGET):
+              budget: int | None = None):
     """Composite tasks.
 
     Parameters
@@ -85,6 +85,8 @@ def composite(torch, vt: ViewTensors, tile, *, keeps=None, keep_of=None, removed
         Pixels composited (tile-local, row-major); the others are left at T = 1.
     record : bool
         Return the added fragments instead of images.
+    budget : int, optional
+        Entries and fragments per chunk (:data:`BUDGET` by default).
 
     Returns
     -------
@@ -93,6 +95,7 @@ def composite(torch, vt: ViewTensors, tile, *, keeps=None, keep_of=None, removed
     added fragment, ordered by task, pixel, then front to back.
     """
     dev = vt.geom.device
+    budget = BUDGET if budget is None else budget
     n = tile.shape[0]
     lens = vt.offsets[tile + 1] - vt.offsets[tile]
     parts = [_chunk(torch, vt, tile, lens, t0, t1, keeps, keep_of, removed, removal_of,
