@@ -25,7 +25,7 @@ from clearsplat import Camera, ClearsplatError, Gaussians, RenderSettings, Scene
 from clearsplat.cameras import look_at  # noqa: E402
 from clearsplat.cli import main  # noqa: E402
 from clearsplat.features import get_extractor  # noqa: E402
-from clearsplat.filter import FilterConfig, filter_distractors  # noqa: E402
+from clearsplat.filter import FilterConfig, filter_distractors, filter_prediction  # noqa: E402
 from clearsplat.filter.backend import TorchBackend, backend_for  # noqa: E402
 from clearsplat.filter.verify import Verifier  # noqa: E402
 from clearsplat.render import _torch_composite, prepare  # noqa: E402
@@ -262,6 +262,22 @@ def test_the_filter_makes_the_native_decisions(family, views, height, width):
     for a, b in zip(result.candidates, native.candidates):
         for test, score in b.scores.items():
             assert abs(a.scores[test] - score) < 1e-5, (a.index, test)
+
+
+def test_filter_prediction_gives_the_keep_mask_on_the_device():
+    world = make_world("object", num_views=4, seed=2, height=48, width=80)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=2)
+    native = filter_distractors(scene)
+    keep = filter_prediction(scene, device="cpu")
+    assert isinstance(keep, torch.Tensor) and keep.dtype == torch.bool
+    assert keep.device == torch.device("cpu") and tuple(keep.shape) == (len(scene),)
+    np.testing.assert_array_equal(keep.numpy(), native.keep)
+    assert not native.keep.all()
+    mask = native.keep_tensor(torch.device("cpu"))
+    assert mask.dtype == torch.bool and torch.equal(mask, keep)
+    with pytest.raises(ClearsplatError) as e:
+        filter_prediction(scene, device="tpu")
+    assert e.value.field == "device"
 
 
 def test_cli_filter_with_the_torch_backend(tmp_path, capsys):
