@@ -313,7 +313,8 @@ class FilterConfig:
         while the scene has at most ``neighbours + 1`` views. None: every view, the paper.
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
-        render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
+        render then goes through gsplat on that GPU (``backend="auto"``; the torch backend on it
+        with ``backend="torch"``) (needs PyTorch with CUDA and gsplat), and
         verification re-renders whole images (``incremental`` applies to the CPU only).
     backend : {"auto", "native", "gsplat", "torch"}
         The renderer behind the stages (:mod:`clearsplat.filter.backend`). ``"auto"``: the
@@ -322,7 +323,8 @@ class FilterConfig:
         ``"torch"``: the native rasterizer's math in batched torch ops on ``device`` (CPU
         tensors on ``"cpu"``), incremental verification with every removal of a view in one
         batch (:mod:`clearsplat.render.torch_view`; needs ``pip install clearsplat[gpu]``).
-        The same decisions as the native rasterizer; renders agree to float32 rounding.
+        Renders agree with the native ones to float32 rounding, and so do the decisions but
+        for threshold tests met within that rounding (``docs/method.md``, "The torch backend").
     """
 
     features: str = "local"
