@@ -37,6 +37,17 @@ from clearsplat.synth.worlds import make_world  # noqa: E402
 TOL = 1e-5
 
 
+@pytest.fixture(autouse=True, scope="module")
+def one_torch_thread():
+    """One torch thread in this module: torch's OpenMP runtime and the native core's spin
+    against each other on a busy machine (``docs/method.md``, "The torch backend"), which only
+    makes these tests slow."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def make_camera(width, height, *, eye=(0.3, 0.2, -3.0), f=(50.0, 55.0)) -> Camera:
     return Camera(K=[[f[0], 0, width / 2 + 0.3], [0, f[1], height / 2 - 0.2], [0, 0, 1]],
                   camera_to_world=look_at(eye, (0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0)),
