@@ -21,7 +21,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import reference_rasterizer as ref  # noqa: E402
-from clearsplat import Camera, ClearsplatError, Gaussians, RenderSettings, Scene  # noqa: E402
+from clearsplat import Camera, ClearsplatError, Gaussians, RenderSettings  # noqa: E402
 from clearsplat.cameras import look_at  # noqa: E402
 from clearsplat.cli import main  # noqa: E402
 from clearsplat.features import get_extractor  # noqa: E402
@@ -29,7 +29,7 @@ from clearsplat.filter import FilterConfig, filter_distractors, filter_predictio
 from clearsplat.filter.backend import TorchBackend, backend_for  # noqa: E402
 from clearsplat.filter.verify import Verifier  # noqa: E402
 from clearsplat.render import _torch_composite, prepare  # noqa: E402
-from clearsplat.render.torch_view import TorchView, prepare_torch, upload_torch  # noqa: E402
+from clearsplat.render.torch_view import prepare_torch, upload_torch  # noqa: E402
 from clearsplat.scene import rgb_to_sh_dc  # noqa: E402
 from clearsplat.synth.backbone import reconstruct  # noqa: E402
 from clearsplat.synth.worlds import make_world  # noqa: E402
