@@ -86,10 +86,17 @@ def main(argv=None) -> None:
     parser.add_argument("--voxel-size", type=float, default=0.002)
     parser.add_argument("--dry-run", action="store_true",
                         help="synthetic arrays shaped like AnySplat's outputs (no model)")
+    parser.add_argument("--backend", choices=("native", "torch"), default="native",
+                        help="the filter's renderer: the native CPU rasterizer, or the torch "
+                             "backend on --device (docs/method.md, 'The torch backend')")
+    parser.add_argument("--device", default="cuda", help="the torch backend's device")
     args = parser.parse_args(argv)
+    config = (FilterConfig(backend="torch", device=args.device) if args.backend == "torch"
+              else None)
     if args.dry_run:
         g, pose, enc, depth, images, voxel = _synthetic_prediction()
-        filter_prediction(g, pose, enc, depth, images, voxel_size=voxel, out_dir=args.out)
+        filter_prediction(g, pose, enc, depth, images, voxel_size=voxel, out_dir=args.out,
+                          config=config)
         return
     try:
         import torch
@@ -108,7 +115,7 @@ def main(argv=None) -> None:
     inverse = exact_voxel_inverse(out, images.shape[-2:], model.encoder.voxel_size)
     filter_prediction(out.gaussians, out.pred_context_pose, out.pred_pose_enc_list[-1],
                       out.depth_dict["depth"], images, voxel_size=model.encoder.voxel_size,
-                      out_dir=args.out, inverse=inverse)
+                      out_dir=args.out, inverse=inverse, config=config)
 
 
 def _synthetic_prediction():

@@ -24,6 +24,10 @@ then filters:
 5. write the new opacities back into the model's tensors (:func:`write_back`) to keep rendering
    with its decoder.
 
+``--backend torch`` runs the filter's renders through the torch backend on ``--device`` (the
+native rasterizer's math in torch; ``docs/method.md``, "The torch backend"), and the keep mask
+comes back as a bool tensor there (``FilterResult.keep_tensor``).
+
 ``--dry-run`` runs steps 4 and 5 without DepthSplat or PyTorch, on a prediction laid out like
 DepthSplat's: four views of a textured wall, consistent with their cameras, and an object that
 stands in front of the wall in one view only (a distractor). The filter removes the object and
@@ -78,7 +82,7 @@ def filter_batch(gaussians, context, *, out_dir: Path, batch: int = 0,
     return result
 
 
-def write_back(gaussians, keep: np.ndarray, *, batch: int = 0):
+def write_back(gaussians, keep, *, batch: int = 0):
     """Zero the opacities of removed Gaussians in the model's own tensors (for its decoder)."""
     import torch  # only needed here
 
@@ -149,12 +153,17 @@ def main(argv=None) -> None:
                              "model, no PyTorch)")
     parser.add_argument("--checkpoint", type=Path, help="DepthSplat checkpoint (.pth / .ckpt)")
     parser.add_argument("--device", default="cuda", help="the encoder's device")
+    parser.add_argument("--backend", choices=("native", "torch"), default="native",
+                        help="the filter's renderer: the native CPU rasterizer, or the torch "
+                             "backend on --device (docs/method.md, 'The torch backend')")
     parser.add_argument("overrides", nargs="*", help="DepthSplat's Hydra overrides")
     args = parser.parse_args(argv)
+    config = (FilterConfig(backend="torch", device=args.device) if args.backend == "torch"
+              else None)
 
     if args.dry_run:
         gaussians, context = synthetic_prediction()
-        filter_batch(gaussians, context, out_dir=args.out, overwrite=args.force)
+        filter_batch(gaussians, context, out_dir=args.out, overwrite=args.force, config=config)
         return
     if args.checkpoint is None:
         parser.error("--checkpoint is required (or try --dry-run)")
@@ -170,9 +179,10 @@ def main(argv=None) -> None:
             prediction = encoder(batch["context"], 0, deterministic=False)
             gaussians = prediction["gaussians"] if isinstance(prediction, dict) else prediction
             for b in range(batch["context"]["image"].shape[0]):
-                result = filter_batch(gaussians, batch["context"], batch=b,
+                result = filter_batch(gaussians, batch["context"], batch=b, config=config,
                                       out_dir=args.out / f"{i:05d}_{b}", overwrite=args.force)
-                write_back(gaussians, result.keep, batch=b)     # then render as usual
+                keep = result.keep_tensor(gaussians.opacities.device)  # (N,) bool there
+                write_back(gaussians, keep, batch=b)     # then render as usual
 
 
 def _wall_colour(x: np.ndarray, y: np.ndarray) -> np.ndarray:

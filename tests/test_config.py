@@ -92,6 +92,8 @@ def test_good_values_are_kept(name):
     for value in values:
         if name == "refine" and value == "none":
             cfg = FilterConfig(refine="none", verify_mask="proposals")
+        elif name == "backend" and value == "gsplat":     # CUDA only: tested below
+            cfg = FilterConfig(backend="gsplat", device="cuda")
         else:
             cfg = FilterConfig(**{name: value})
         got = getattr(cfg, name)
@@ -116,6 +118,12 @@ def test_cross_field_checks():
         FilterConfig(tau1=0.6, tau2=0.5)
     with pytest.raises(ClearsplatError, match="needs refine other than 'none'"):
         FilterConfig(refine="none")
+    FilterConfig(backend="torch", device="cuda")
+    with pytest.raises(ClearsplatError, match="'native' renders on the CPU only") as e:
+        FilterConfig(backend="native", device="cuda")
+    assert e.value.field == "backend"
+    with pytest.raises(ClearsplatError, match="'gsplat' renders on a CUDA device only"):
+        FilterConfig(backend="gsplat")
     with pytest.raises(ClearsplatError, match="unknown option 'etaa'"):
         FilterConfig().replace(etaa=0.5)
 

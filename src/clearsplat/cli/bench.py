@@ -64,7 +64,10 @@ def check_dependencies(configs: dict, *, real_check: bool) -> None:
                 need.setdefault(module, f"config {label!r} uses the {cfg.features!r} features, "
                                         f'which need torch and transformers: pip install '
                                         f'"clearsplat[dino]" and give --checkpoint DIR')
-        if cfg.device != "cpu":
+        if cfg.backend == "torch":
+            need.setdefault("torch", f"config {label!r} uses the torch backend, which needs "
+                                     'torch: pip install "clearsplat[gpu]"')
+        elif cfg.device != "cpu":
             for module in ("torch", "gsplat"):
                 need.setdefault(module, f"config {label!r} renders on {cfg.device!r}, which "
                                         f'needs torch with CUDA and gsplat: pip install '

@@ -27,8 +27,11 @@ which both renderers implement with the same results and checks
 :class:`NativeBackend` is the CPU rasterizer (``config.device == "cpu"``): views within a
 memory budget, incremental verification on tile patches, the views and renders of one round
 handed on to the next. :class:`DeviceBackend` is gsplat on a CUDA device: whole-image
-verification renders, nothing handed on. :func:`backend_for` picks one from the config; no
-other module of the filter decides which renderer answers.
+verification renders, nothing handed on. :class:`TorchBackend` (``config.backend="torch"``)
+is the native rasterizer's math in batched torch ops on ``config.device`` (CPU or CUDA):
+incremental verification, every removal of a view re-composited in one batch
+(:class:`clearsplat.render.torch_view.TorchView`). :func:`backend_for` picks one from the
+config; no other module of the filter decides which renderer answers.
 """
 
 from __future__ import annotations
@@ -36,11 +39,13 @@ from __future__ import annotations
 import numpy as np
 
 from .._memory import available_memory, check_memory, estimate_filter_memory
+from ..errors import ClearsplatError
 from .config import FilterConfig
 from .verify import Verifier
 from .views import PreparedViews
 
-__all__ = ["FilterBackend", "NativeBackend", "DeviceBackend", "HeldView", "backend_for"]
+__all__ = ["FilterBackend", "NativeBackend", "DeviceBackend", "TorchBackend", "HeldView",
+           "backend_for"]
 
 
 class FilterBackend:
@@ -187,6 +192,37 @@ class HeldView:
         return self._view.contributions(mask, keep=self._k(keep))
 
 
+class TorchBackend(FilterBackend):
+    """The native rasterizer's math in torch on ``config.device``
+    (:class:`clearsplat.render.torch_view.TorchView`): one upload of the Gaussians shared by
+    the views, each view projected once; incremental verification with all removals of a view
+    in one batched call; views neither pruned nor handed on."""
+
+    def __init__(self, config: FilterConfig):
+        super().__init__(config)
+        self.incremental = bool(config.incremental)
+        try:
+            from ..render.torch_view import import_torch
+            import_torch(config.device)
+        except ImportError as e:
+            raise ClearsplatError(f"'torch' on {config.device!r}: {e}", field="backend") from None
+
+    def prepare_views(self, scene, previous=None, hoods=None):
+        from ..render.torch_view import prepare_torch, upload_torch
+        gaussians = upload_torch(scene, device=self.config.device)
+
+        def make(i: int):
+            keep = None if hoods is None else hoods[i][scene.view_id]
+            return prepare_torch(gaussians, scene.cameras[i], keep=keep)
+
+        views = PreparedViews(len(scene), scene.cameras, make, budget=None,
+                              skip_unseen=self.incremental)
+        return views, {}
+
+
 def backend_for(config: FilterConfig) -> FilterBackend:
-    """The backend of ``config.device``: native on ``"cpu"``, gsplat on a CUDA device."""
+    """The backend of ``config.backend``; ``"auto"``: native on ``"cpu"``, gsplat on a CUDA
+    device."""
+    if config.backend == "torch":
+        return TorchBackend(config)
     return NativeBackend(config) if config.device == "cpu" else DeviceBackend(config)

@@ -325,8 +325,18 @@ class FilterConfig:
         "Dense captures").
     device : str
         ``"cpu"`` (the native rasterizer) or a CUDA device (``"cuda"``, ``"cuda:1"``...): every
-        render then goes through gsplat on that GPU (needs PyTorch with CUDA and gsplat), and
+        render then goes through gsplat on that GPU (``backend="auto"``; the torch backend on it
+        with ``backend="torch"``) (needs PyTorch with CUDA and gsplat), and
         verification re-renders whole images (``incremental`` applies to the CPU only).
+    backend : {"auto", "native", "gsplat", "torch"}
+        The renderer behind the stages (:mod:`clearsplat.filter.backend`). ``"auto"``: the
+        native rasterizer on ``"cpu"``, gsplat on a CUDA device. ``"native"``: the native CPU
+        rasterizer (``device="cpu"`` only). ``"gsplat"``: gsplat (a CUDA device only).
+        ``"torch"``: the native rasterizer's math in batched torch ops on ``device`` (CPU
+        tensors on ``"cpu"``), incremental verification with every removal of a view in one
+        batch (:mod:`clearsplat.render.torch_view`; needs ``pip install clearsplat[gpu]``).
+        Renders agree with the native ones to float32 rounding, and so do the decisions but
+        for threshold tests met within that rounding (``docs/method.md``, "The torch backend").
     """
 
     features: str = "local"
@@ -369,6 +379,7 @@ class FilterConfig:
     neighbours: int | None | str = "auto"
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
     leave_out: int = 0
+    backend: Literal["auto", "native", "gsplat", "torch"] = "auto"
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -381,6 +392,14 @@ class FilterConfig:
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
             raise ClearsplatError(f"tau1 ({self.tau1}) must be below tau2 ({self.tau2})",
                                   field="tau1/tau2")
+        if self.backend == "native" and self.device != "cpu":
+            raise ClearsplatError(f"'native' renders on the CPU only, not on {self.device!r}; "
+                                  "set device='cpu' or choose backend 'gsplat' or 'torch'",
+                                  field="backend")
+        if self.backend == "gsplat" and self.device == "cpu":
+            raise ClearsplatError("'gsplat' renders on a CUDA device only; set device='cuda' or "
+                                  "choose backend 'native' or 'torch' for the CPU",
+                                  field="backend")
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "FilterConfig":
@@ -472,6 +491,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
     "leave_out": FieldSpec("integer", 0),
+    "backend": FieldSpec("choice", choices=("auto", "native", "gsplat", "torch")),
 }
 
 

@@ -126,6 +126,16 @@ class FilterResult:
         """(N,) bool: the Gaussians removed."""
         return ~self.keep
 
+    def keep_tensor(self, device="cpu"):
+        """:attr:`keep` as an (N,) ``torch.bool`` tensor on ``device`` (a torch device or its
+        name), for masking a prediction that stays on the GPU: ``opacities * keep``.
+
+        Needs PyTorch (``pip install clearsplat[gpu]``).
+        """
+        from ..render.torch_view import import_torch
+        torch = import_torch(device)
+        return torch.from_numpy(np.ascontiguousarray(self.keep)).to(device)
+
     def apply(self, scene: Scene) -> Scene:
         """The filtered scene: removed Gaussians get opacity zero, nothing else changes."""
         return scene.with_opacities(np.where(self.keep, scene.gaussians.opacities, 0.0))
