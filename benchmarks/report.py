@@ -14,8 +14,8 @@ Sections measured (each runs the commands printed above its tables, as subproces
   ``benchmarks/realism_acceptance.py``.
 - ``ablation``: ``clearsplat bench --ablation`` (``clearsplat.bench.ABLATIONS``) at 128x224,
   4 and 8 views, both families, scenarios ``plain`` and ``all``; one row per config.
-- ``speed``: ``benchmarks/filter_speed.py`` (object 4/8/16 views at 256x448; street 8/16/32
-  views at 128x224), ``benchmarks/cli_speed.py``, ``benchmarks/render_speed.py``. Run it on a
+- ``speed``: ``benchmarks/filter_speed.py`` (object 4/8/16 views at 256x448; street
+  8/16/32/64/100 views at 128x224), ``benchmarks/cli_speed.py``, ``benchmarks/render_speed.py``. Run it on a
   quiet machine: ``--wait-quiet S`` polls the 1-minute load average until it is below
   ``--max-load`` (0.5) for a minute, up to S seconds (600 by default); otherwise the section
   keeps its block of the existing page and the exit status is 3.
@@ -240,7 +240,8 @@ def grids(work: str, quick: bool) -> Grid:
                                "--repeats", "3", "--full-repeats", "0",
                                "--json", f"{w}/speed-object.rows"],
               result=f"{w}/speed-object.rows"),
-         Step("speed-street", ["python", "benchmarks/filter_speed.py", "--views", "8,16,32",
+         Step("speed-street", ["python", "benchmarks/filter_speed.py",
+                               "--views", "8,16,32,64,100",
                                "--resolution", "128x224", "--family", "street",
                                "--repeats", "3", "--full-repeats", "0",
                                "--json", f"{w}/speed-street.rows"],
@@ -526,14 +527,15 @@ def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
 STATIC = {
     "dense": """## Dense captures
 
-Options for captures of many views, all off by default: `neighbours=K` (each camera's renders
-hold only the Gaussians of its K most co-visible views and of the views it verifies; exact with
-at most K + 1 views), `verify_views="mutual"` (verification views ranked by the field of view
-they share both ways) and, for the frames of a video, `leave_out=R` (the R views on each side
-also left out of a view's exclusion render). What they answer and their measurements are in
-`docs/method.md`, "Dense captures". `prune_views` never changes the output; it is off by
-default because on the stand-in dense captures the proposals cover about half of every image,
-so little can be pruned.
+From 24 input views on, the default bounds each camera's renders to the Gaussians of its seven
+most co-visible views and of the views it verifies, and picks the verification views by the
+field of view they share both ways (`neighbours="auto"`, `verify_views="auto"`); below 24 views,
+and in the `exact` preset, every view. For the frames of a video, `leave_out=R` (off by
+default) also leaves the R views on each side out of a view's exclusion render. What they
+answer and their measurements are in `docs/method.md`, "Dense captures"; their speed is in the
+street rows of "Speed" above (32, 64 and 100 views). `prune_views` never changes the output; it
+is off by default because on the stand-in dense captures the proposals cover about half of
+every image, so little can be pruned.
 """,
     "gpu": """## On a GPU
 
@@ -542,6 +544,12 @@ The CUDA path (`--set device=cuda`, gsplat) runs its decisions through the fake 
 decisions on a GPU are not measured with today's code. The commands that measure them:
 `python benchmarks/filter_speed.py --device cuda --views 4,8,16` and
 `python benchmarks/gpu_decisions.py --views 8,16`.
+
+The torch backend (`--set backend=torch`, on `--set device=cuda` or on CPU tensors) runs on the
+CPU in `tests/test_torch_backend.py` on every test run, where it makes the native filter's
+decisions at 4 and 8 views; on the CPU it is many times slower than the native rasterizer and is
+meant for a GPU, where its speed is not measured either (`python benchmarks/filter_speed.py
+--device cuda --set backend=torch --views 4,8,16` measures it).
 """,
     "datasets": """## Real datasets: RobustNeRF and NeRF On-the-go
 
