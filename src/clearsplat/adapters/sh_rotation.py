@@ -16,19 +16,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ClearsplatError
+from .._sh import C0 as _C0, C1 as _C1, C2 as _C2, C3 as _C3, C4 as _C4
 
 __all__ = ["sh_basis", "sh_rotation_matrices", "rotate_sh"]
-
-_C0 = 0.28209479177387814
-_C1 = 0.4886025119029199
-_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
-       0.5462742152960396)
-_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-       -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
-# Degree 4, the sign convention of the bands below (gsplat evaluates it this way).
-_C4 = (2.5033429417967046, -1.7701307697799304, 0.9461746957575601, -0.6690465435572892,
-       0.10578554691520431, -0.6690465435572892, 0.47308734787878004, -1.7701307697799304,
-       0.6258357354491763)
 
 
 def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels import TILE
+from .._sh import C0 as _C0, C1 as _C1, C2 as _C2, C3 as _C3, C4 as _C4
 
 __all__ = ["project", "bin_tiles", "rect_tiles", "exp_nonpositive"]
 
@@ -31,16 +32,6 @@ MAX_ALPHA = 0.99
 MIN_TRANSMITTANCE = 1e-4
 _TILE_PIXELS = TILE * TILE
 
-# Real SH constants (cpp/sh.h).
-_C0 = 0.28209479177387814
-_C1 = 0.4886025119029199
-_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
-       0.5462742152960396)
-_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-       -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
-_C4 = (2.5033429417967046, -1.7701307697799304, 0.9461746957575601, -0.6690465435572892,
-       0.10578554691520431, -0.6690465435572892, 0.47308734787878004, -1.7701307697799304,
-       0.6258357354491763)
 
 
 # -- float32 polynomials of the C++ code (Cephes), so that boxes and alphas agree bit for bit --
