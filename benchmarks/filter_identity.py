@@ -107,6 +107,8 @@ def main(argv=None) -> int:
             # change the output) are not compared.
             for key in set(got[c]["summary"]["config"]) - set(want[c]["summary"]["config"]):
                 got[c]["summary"]["config"].pop(key)
+            for item in args.set:   # the options set here are not compared on either side
+                want[c]["summary"]["config"].pop(item.partition("=")[0], None)
             # Likewise fields added to the candidates' records (the round that found them).
             known = set().union(*(r.keys() for r in want[c]["summary"]["candidates"]))
             for record in got[c]["summary"]["candidates"]:
