@@ -49,7 +49,6 @@ ABLATIONS = {
     "one-refine-pass": "default+refine_passes=1",
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
-    "all-regions": "default+later_rounds=all",
     "every-view": "default+neighbours=null+verify_views=centres",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
@@ -61,6 +60,7 @@ ABLATIONS = {
     "+photo-align": "default+photometric_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
+    "+changed-regions": "default+later_rounds=changed",
 }
 
 

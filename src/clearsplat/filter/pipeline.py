@@ -144,7 +144,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
                             [msg]), None
     images = aligned_images(scene.images, renders.excl, config)
     proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
-    if renders.changed is not None and config.later_rounds == "changed":
+    if renders.changed is not None:     # later_rounds="changed"
         keep_changed_regions(proposals, renders.changed)     # what the last round decided
     region_map = RegionMap(state)
     regions = [r for p in proposals for r in p.regions]
@@ -202,7 +202,7 @@ def _finish(state: RoundState, keep, candidates, proposals, renders, touched: di
         carry = Carry(views, renders.full, renders.excl, keep)
     else:
         views.release()
-        if hold:    # R_i^-i alone: where the next round's changed (``later_rounds``)
+        if hold and state.config.later_rounds == "changed":  # R_i^-i: where the next changed
             carry = Carry(None, [], renders.excl, keep)
     timings = state.clock.timings
     timings["total"] = timings["proposal"] + timings["verification"]

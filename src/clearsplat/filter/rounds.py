@@ -52,8 +52,8 @@ def keep_changed_regions(proposals: list, changed: list) -> int:
     None: every pixel). Where the exclusion render did not change, the input, the render and
     so the similarity and the region are the round before's, which that round has decided; a
     region is kept when one of its cells, or a cell next to one (the similarity of a cell looks
-    a little beyond it), holds a changed pixel (``FilterConfig.later_rounds="changed"``). The
-    proposals' range masks stay whole. Returns how many regions were dropped.
+    a little beyond it), holds a changed pixel (``FilterConfig.later_rounds="changed"``, off by
+    default). The proposals' range masks stay whole. Returns how many regions were dropped.
     """
     from .proposal import cell_index_map
     dropped = 0
