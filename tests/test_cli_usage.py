@@ -121,3 +121,10 @@ def test_filter_command_imports_no_scipy(tmp_path):
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "removed" in proc.stdout
+
+
+def test_every_preset_has_help():
+    from clearsplat.cli._common import PRESET_HELP
+    from clearsplat.filter import PRESETS
+    assert set(PRESET_HELP) == set(PRESETS)
+    assert all(PRESET_HELP[name].strip() for name in PRESETS)

@@ -64,6 +64,8 @@ PRESET_HELP = {
     "paper": "the paper's procedure exactly; needs DINOv3: pip install \"clearsplat[dino]\" "
              "and a local checkpoint (--checkpoint DIR)",
     "paper-local": "the paper's procedure with the weight-free 'local' features",
+    "exact": "the default without its speed approximations (every view in every camera's "
+             "renders, also from 24 views on)",
 }
 
 
