@@ -15,7 +15,7 @@ Sections measured (each runs the commands printed above its tables, as subproces
 - ``ablation``: ``clearsplat bench --ablation`` (``clearsplat.bench.ABLATIONS``) at 128x224,
   4 and 8 views, both families, scenarios ``plain`` and ``all``; one row per config.
 - ``speed``: ``benchmarks/filter_speed.py`` (object 4/8/16 views at 256x448; street
-  8/16/32/64/100 views at 128x224), ``benchmarks/cli_speed.py``, ``benchmarks/render_speed.py``. Run it on a
+  8/16/32/64/100 views at 128x224 and 64 views at 256x448), ``benchmarks/cli_speed.py``, ``benchmarks/render_speed.py``. Run it on a
   quiet machine: ``--wait-quiet S`` polls the 1-minute load average until it is below
   ``--max-load`` (0.5) for a minute, up to S seconds (600 by default); otherwise the section
   keeps its block of the existing page and the exit status is 3.
@@ -246,6 +246,11 @@ def grids(work: str, quick: bool) -> Grid:
                                "--repeats", "3", "--full-repeats", "0",
                                "--json", f"{w}/speed-street.rows"],
               result=f"{w}/speed-street.rows"),
+         Step("speed-dense", ["python", "benchmarks/filter_speed.py", "--views", "64",
+                              "--resolution", "256x448", "--family", "street",
+                              "--repeats", "1", "--full-repeats", "0",
+                              "--json", f"{w}/speed-dense.rows"],
+              result=f"{w}/speed-dense.rows"),
          Step("speed-cli", ["python", "benchmarks/cli_speed.py", "--repeats", "5"]),
          Step("speed-render", ["python", "benchmarks/render_speed.py", "--repeats", "5"])]
     sc = [Step("scenarios", ["python", "benchmarks/realism_strengths.py", "--views", "4,16",
@@ -497,7 +502,7 @@ def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
         "## Speed", "",
         "Today's default on the CPU. Each script prints its machine and the 1-minute load "
         f"average at its end; before the section the load was {load}.", ""]
-    if "speed-object" in by or "speed-street" in by:
+    if "speed-object" in by or "speed-street" in by or "speed-dense" in by:
         lines += [
             "### Filter", "",
             "Stand-in scenes (one pixel-aligned Gaussian per pixel), each view count in a fresh "
@@ -506,7 +511,7 @@ def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
             "`clearsplat filter` call); *CPU s*: process CPU time; *prepared*/*derived*: "
             "camera preparations, and those a second round took from the first; *where the "
             "time goes*: medians of the steps.", ""]
-        for name in ("speed-object", "speed-street"):
+        for name in ("speed-object", "speed-street", "speed-dense"):
             if name in by:
                 lines += _step_lines(by[name], mach, f" {by[name].seconds:.0f} s in all.")
     if "speed-cli" in by:
