@@ -514,19 +514,21 @@ def section_speed(steps: list, mach: dict, work: str, load: str) -> str:
         for name in ("speed-object", "speed-street", "speed-dense"):
             if name in by:
                 lines += _step_lines(by[name], mach, f" {by[name].seconds:.0f} s in all.")
-    if "speed-cli" in by:
-        st = by["speed-cli"]
-        lines += ["### `clearsplat filter`, whole process", "",
-                  "A saved 16-view object bundle at 128x192 (393,216 Gaussians), filtered by "
-                  "the command in a fresh process each time (imports, loading, filtering, "
-                  "writing).", "", *_step_lines(st, mach)]
-    if "speed-render" in by:
-        st = by["speed-render"]
-        lines += ["### Rendering", "",
-                  "The CPU rasterizer: 8 views of pixel-aligned Gaussians at 256x448 (917,504 "
-                  "Gaussians) rendered from each input camera; medians over cameras and "
-                  "repeats.", "", *_step_lines(st, mach)]
+    for name, heading, text in _SPEED_TEXT:
+        if name in by:
+            lines += [heading, "", text, "", *_step_lines(by[name], mach)]
     return wrap(lines)
+
+
+#: The speed section's other steps: (step, heading, what it measures).
+_SPEED_TEXT = (
+    ("speed-cli", "### `clearsplat filter`, whole process",
+     "A saved 16-view object bundle at 128x192 (393,216 Gaussians), filtered by the command in "
+     "a fresh process each time (imports, loading, filtering, writing)."),
+    ("speed-render", "### Rendering",
+     "The CPU rasterizer: 8 views of pixel-aligned Gaussians at 256x448 (917,504 Gaussians) "
+     "rendered from each input camera; medians over cameras and repeats."),
+)
 
 
 STATIC = {

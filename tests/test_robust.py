@@ -340,14 +340,13 @@ def test_local_depth_scales_follow_a_slow_ramp_and_ignore_a_small_object():
 
 
 def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
-    """``rounds=2`` with ``later_rounds="all"`` is the filter run once, then run again on the
-    scene without what it removed, the second run's removals and candidates mapped back to the
-    whole scene."""
+    """``rounds=2`` is the filter run once, then run again on the scene without what it
+    removed, the second run's removals and candidates mapped back to the whole scene."""
     scene, _ = soft_scene
     ex = get_extractor("local")
     # Without min_relative_score the first round leaves something for the second on this
     # small scene.
-    one = FilterConfig(rounds=1, min_relative_score=0.0, later_rounds="all")
+    one = FilterConfig(rounds=1, min_relative_score=0.0)
     first = filter_distractors(scene, config=one, extractor=ex)
     kept = np.flatnonzero(first.keep)
     second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
@@ -449,7 +448,7 @@ def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene):
     again): the same as running the filter afresh on what the rounds before kept."""
     scene, _ = soft_scene
     ex = get_extractor("local")
-    one = FilterConfig(rounds=1, min_relative_score=0.0, later_rounds="all")  # 3 rounds find some
+    one = FilterConfig(rounds=1, min_relative_score=0.0)    # three rounds find something
     kept = np.arange(len(scene))
     runs = 0
     for _ in range(3):
@@ -493,7 +492,7 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
     ex = get_extractor("local")
     # Without min_relative_score the first round leaves something for the second on this
     # small scene.
-    one = FilterConfig(rounds=1, min_relative_score=0.0, later_rounds="all")
+    one = FilterConfig(rounds=1, min_relative_score=0.0)
     first = filter_distractors(scene, config=one, extractor=ex)
     kept = np.flatnonzero(first.keep)
     second = filter_distractors(scene.subset(kept), config=one, extractor=ex)

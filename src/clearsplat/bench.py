@@ -60,7 +60,6 @@ ABLATIONS = {
     "+photo-align": "default+photometric_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
-    "+changed-regions": "default+later_rounds=changed",
 }
 
 

@@ -115,7 +115,7 @@ class NativeBackend(FilterBackend):
         touched: dict = {}      # view -> tiles the previous round's removals touched there
 
         def make(i: int):
-            old = None if previous is None or previous.views is None else previous.views.take(i)
+            old = None if previous is None else previous.views.take(i)
             if old is None:
                 keep = None if hoods is None else hoods[i][scene.view_id]
                 return prepare(scene, scene.cameras[i], keep=keep, num_threads=threads)

@@ -291,13 +291,6 @@ class FilterConfig:
         0.58 dB at 16 views, 0.18 dB at 8 and 0.02 dB at 4, and at 8 views it finds most of
         the passers-by that ``min_relative_score`` rejects in the first round, once the other
         views' passers-by that their removal uncovered are gone). 1: the paper (a single run).
-    later_rounds : {"changed", "all"}
-        Which regions a later round (``rounds``) takes on. ``"all"``: every region again, as a
-        fresh run on the kept Gaussians. ``"changed"``: only those where the round before's
-        removals changed R_i^-i (and the cells next to them): elsewhere the input, the render
-        and so the region are the round before's, already decided
-        (:func:`clearsplat.filter.rounds.keep_changed_regions`). Measured, it decides as
-        ``"all"`` does but saves no time at 8 and 16 views (docs/method.md), so it is off.
     leave_out : int
         Views on each side, in input order, whose Gaussians R_i^-i also leaves out with view
         i's own, and which do not verify view i. For video: a passer-by who stays for a few
@@ -375,7 +368,6 @@ class FilterConfig:
     refine_tolerance_depth: bool = False
     depth_scale_reach: int = 0
     rounds: int | str = "auto"
-    later_rounds: Literal["changed", "all"] = "all"
     neighbours: int | None | str = "auto"
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
     leave_out: int = 0
@@ -487,7 +479,6 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine_tolerance_depth": FieldSpec("bool"),
     "depth_scale_reach": FieldSpec("integer", 0),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
-    "later_rounds": FieldSpec("choice", choices=("changed", "all")),
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
     "leave_out": FieldSpec("integer", 0),
@@ -506,7 +497,7 @@ PRESETS = {
                           min_relative_score=0.0, refine_passes=1,
                           expand_connected=False, refine_tolerance_depth=True,
                           depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                          later_rounds="all", neighbours=None, verify_views="centres"),
+                          neighbours=None, verify_views="centres"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -515,7 +506,7 @@ PRESETS = {
                                 min_relative_score=0.0, refine_passes=1,
                                 expand_connected=False, refine_tolerance_depth=True,
                                 depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                                later_rounds="all", neighbours=None, verify_views="centres"),
+                                neighbours=None, verify_views="centres"),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").

@@ -30,17 +30,12 @@ class ExclusionRenders:
         (the choice of verification views V_i).
     any_visible : bool
         Whether any Gaussian is in front of any camera.
-    changed : list of (H, W) bool or None
-        With ``later_rounds="changed"``, in a later round, per view, the pixels where R_i^-i
-        differs from the round before's (None where that round's render was not handed on:
-        every pixel may differ). None otherwise.
     """
 
     full: list
     excl: list
     seen: np.ndarray
     any_visible: bool
-    changed: list | None = None
 
 
 def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
@@ -52,9 +47,6 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
     scene, views, own = state.scene, state.views, state.own
     seen = np.zeros((scene.num_views, scene.num_views), dtype=np.int64)
     full, excl = [], []
-    # Where R_i^-i changed since the round before (read only by later_rounds="changed").
-    track = previous is not None and state.config.later_rounds == "changed"
-    changed = [None] * scene.num_views if track else None
     any_visible = False
     for i in range(scene.num_views):
         pv = views[i]
@@ -62,38 +54,24 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         any_visible |= pv.num_visible > 0
         seen[i] = np.bincount(scene.view_id[pv.centres_inside()], minlength=scene.num_views)
         if i in touched:    # the previous round's renders, where its removals changed nothing
-            r_full, r_excl, differs = _update_pair(pv, own[i], touched[i], previous, i, track)
-            if track:
-                changed[i] = differs
+            r_full, r_excl = _update_pair(pv, own[i], touched[i], previous, i)
         else:
             r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
-            if track and previous.excl[i] is not None:
-                changed[i] = _differs(r_excl, previous.excl[i])
-                previous.excl[i] = None
         full.append(r_full)
         excl.append(r_excl)
         state.lap("exclusion_renders")
         state.report("render", i + 1, scene.num_views)
-    return ExclusionRenders(full, excl, seen, bool(any_visible), changed)
+    return ExclusionRenders(full, excl, seen, bool(any_visible))
 
 
-def _update_pair(pv, own, tiles, previous, i: int, track: bool):
+def _update_pair(pv, own, tiles, previous, i: int):
     """View ``i``'s R_i and R_i^-i from the previous round's, composited again in ``tiles``
-    (which the previous round's removals touched), and (``track``) the (H, W) bool pixels where
-    R_i^-i changed (else None); the previous renders are dropped."""
+    (which the previous round's removals touched); the previous renders are dropped."""
     r_full, r_excl = pv.render_pair(keep=~own, tiles=tiles, start=previous.full[i])
     flat, inside = pv.tile_pixels(tiles)
     outside = np.ones(r_excl.alpha.shape, dtype=bool)
     outside.reshape(-1)[flat[inside]] = False
     for a, b in zip(r_excl, previous.excl[i]):
         a[outside] = b[outside]
-    changed = _differs(r_excl, previous.excl[i]) if track else None
     previous.full[i] = previous.excl[i] = None     # no longer needed
-    return r_full, r_excl, changed
-
-
-def _differs(a, b) -> np.ndarray:
-    """(H, W) bool: the pixels where two renders differ in colour, opacity or depth."""
-    out = (a.alpha != b.alpha) | (a.depth != b.depth)
-    out |= (a.rgb != b.rgb).any(-1)
-    return out
+    return r_full, r_excl

@@ -36,7 +36,7 @@ from .refine import refine
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
-from .rounds import Carry, in_round, keep_changed_regions, merge_round
+from .rounds import Carry, in_round, merge_round
 from .state import Progress, RoundState
 from .verify import individual_tests, make_verifier, range_masks, second_range_tests
 
@@ -144,8 +144,6 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
                             [msg]), None
     images = aligned_images(scene.images, renders.excl, config)
     proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
-    if renders.changed is not None:     # later_rounds="changed"
-        keep_changed_regions(proposals, renders.changed)     # what the last round decided
     region_map = RegionMap(state)
     regions = [r for p in proposals for r in p.regions]
     raw = [region_map(r.view, r.pixels) for r in regions]                # C_k
@@ -202,8 +200,6 @@ def _finish(state: RoundState, keep, candidates, proposals, renders, touched: di
         carry = Carry(views, renders.full, renders.excl, keep)
     else:
         views.release()
-        if hold and state.config.later_rounds == "changed":  # R_i^-i: where the next changed
-            carry = Carry(None, [], renders.excl, keep)
     timings = state.clock.timings
     timings["total"] = timings["proposal"] + timings["verification"]
     return FilterResult(keep, candidates, proposals, timings, state.config, stats=stats), carry
