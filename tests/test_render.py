@@ -300,6 +300,23 @@ def test_keep_equals_subset_render(world):
     assert_same(prepare(scene, cam).render(keep=keep), render(scene.subset(keep), cam))
 
 
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_prepared_with_keep_runs_equals_subset(world, seed):
+    # Runs of kept and dropped Gaussians, as a view's neighbourhood keeps whole views: the
+    # projection skips blocks without a kept Gaussian, and must still equal the subset.
+    scene, _ = world
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(1, 300, size=64)
+    keep = np.repeat(np.arange(lengths.size) % 2 == seed % 2, lengths)[:len(scene)]
+    keep = np.pad(keep, (0, len(scene) - keep.size))
+    assert keep.any() and not keep.all()
+    for cam in scene.cameras:
+        view = prepare(scene, cam, keep=keep)
+        assert_same(view.render(), render(scene.subset(keep), cam))
+        np.testing.assert_array_equal(np.flatnonzero(keep)[prepare(scene.subset(keep), cam)
+                                                           .visible], view.visible)
+
 def test_prepared_render_equals_render(world):
     scene, _ = world
     view = prepare(scene, scene.cameras[1])

@@ -241,6 +241,13 @@ void project_block(const ProjectInputs& in, const ProjectParams& p, int64_t i0, 
     }
 }
 
+// Whether any of keep[0, cnt) is set.
+inline bool any_kept(const uint8_t* keep, int cnt) {
+    uint8_t any = 0;
+    for (int j = 0; j < cnt; ++j) any |= keep[j];
+    return any != 0;
+}
+
 // Fills the record of a Gaussian that passed project_block; false if it is not finite.
 inline bool finish_one(int64_t i, int j, const Block& b, const ProjectInputs& in,
                        const ProjectParams& p, Splat& s, Rect& r) {
@@ -301,6 +308,9 @@ ProjectResult project(const ProjectInputs& in, const ProjectParams& p, int num_t
         Block block;
         for (int64_t i0 = begin; i0 < end; i0 += kBlock) {
             const int cnt = int(std::min<int64_t>(kBlock, end - i0));
+            // A block without a kept Gaussian adds nothing: skip its projection. Each lane is
+            // computed on its own (project_block), so the others' records do not change.
+            if (in.keep && !any_kept(in.keep + i0, cnt)) continue;
             project_block(in, p, i0, cnt, block);
             for (int j = 0; j < cnt; ++j) {
                 const int64_t i = i0 + j;
