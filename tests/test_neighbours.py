@@ -230,3 +230,22 @@ def test_auto_is_the_explicit_options_it_resolves_to(monkeypatch):
     assert np.array_equal(a.keep, b.keep)
     assert [x.record() for x in a.candidates] == [x.record() for x in b.candidates]
     assert [x.record() for x in a.candidates] != [x.record() for x in c.candidates]
+
+
+def test_held_masks_through_the_view_index_equal_the_gather(street):
+    # The masks a neighbourhood's prepared view and the own-view masks are built from each
+    # view's members; they must equal hoods[j][view_id], also with views in shuffled order.
+    from clearsplat.filter.association import ViewIndex
+    from clearsplat.filter.backend import held_mask
+    scene, _ = street
+    rng = np.random.default_rng(0)
+    shuffled = scene.subset(rng.permutation(len(scene)))
+    for s in (scene, shuffled):
+        index = ViewIndex(s)
+        for _ in range(5):
+            views = rng.uniform(size=s.num_views) < 0.4
+            np.testing.assert_array_equal(index.views_mask(views, len(s)), views[s.view_id])
+        hoods = neighbourhoods(s, 3, 2)
+        for j in range(s.num_views):
+            np.testing.assert_array_equal(held_mask(s, hoods, j, index), hoods[j][s.view_id])
+        assert held_mask(s, None, 0, index) is None

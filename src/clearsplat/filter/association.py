@@ -52,6 +52,14 @@ class ViewIndex:
         out[self.members[view]] = True
         return out
 
+    def views_mask(self, views: np.ndarray, n: int) -> np.ndarray:
+        """(N,) bool mask of the Gaussians of the views where ``views`` ((V,) bool) is set:
+        ``views[scene.view_id]``, in time proportional to those views' Gaussians."""
+        out = np.zeros(n, dtype=bool)
+        for v in np.flatnonzero(views):
+            out[self.members[v]] = True
+        return out
+
 
 def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: ViewIndex,
                      min_weight: float = 0.05, prepared=None) -> np.ndarray:

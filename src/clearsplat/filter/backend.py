@@ -73,12 +73,13 @@ class FilterBackend:
     def check_memory(self, scene, previous=None) -> None:
         """Refuse a round that cannot fit in memory (before any work)."""
 
-    def prepare_views(self, scene, previous=None, hoods=None):
+    def prepare_views(self, scene, previous=None, hoods=None, index=None):
         """One prepared view per input camera of ``scene``, as a view set, and the tiles per
         view that ``previous`` (the round before) must composite again: ``(views, touched)``,
         ``touched`` filled as views are read. ``hoods``: per camera j, the (V,) bool views
         whose Gaussians its view holds (:func:`~clearsplat.filter.neighbours.neighbourhoods`;
-        None: all)."""
+        None: all). ``index``: the round's :class:`~clearsplat.filter.association.ViewIndex`,
+        which builds those Gaussian masks faster (optional)."""
         raise NotImplementedError
 
     def verifier(self, views, images: list, images_hi: list | None, *, epsilon: float,
@@ -109,7 +110,7 @@ class NativeBackend(FilterBackend):
         check_memory(estimate_filter_memory(len(scene), scene.cameras, view_budget=self.budget),
                      available=available)
 
-    def prepare_views(self, scene, previous=None, hoods=None):
+    def prepare_views(self, scene, previous=None, hoods=None, index=None):
         from ..render import prepare
         threads = self.config.num_threads
         touched: dict = {}      # view -> tiles the previous round's removals touched there
@@ -117,8 +118,8 @@ class NativeBackend(FilterBackend):
         def make(i: int):
             old = None if previous is None else previous.views.take(i)
             if old is None:
-                keep = None if hoods is None else hoods[i][scene.view_id]
-                return prepare(scene, scene.cameras[i], keep=keep, num_threads=threads)
+                return prepare(scene, scene.cameras[i], keep=held_mask(scene, hoods, i, index),
+                               num_threads=threads)
             touched[i] = old.tiles_touched(~previous.keep)
             return old.restrict(previous.keep)
 
@@ -148,11 +149,12 @@ class DeviceBackend(FilterBackend):
     upload of the Gaussians shared by the views; the host holds only images and masks, so
     there is no memory check here."""
 
-    def prepare_views(self, scene, previous=None, hoods=None):
+    def prepare_views(self, scene, previous=None, hoods=None, index=None):
         from ..render.gsplat import prepare_gsplat_views
         views = prepare_gsplat_views(scene, scene.cameras, device=self.config.device)
         if hoods is not None:
-            views = [HeldView(v, hoods[j][scene.view_id]) for j, v in enumerate(views)]
+            views = [HeldView(v, held_mask(scene, hoods, j, index))
+                     for j, v in enumerate(views)]
         return DeviceViews(views), {}
 
 
@@ -207,17 +209,27 @@ class TorchBackend(FilterBackend):
         except ImportError as e:
             raise ClearsplatError(f"'torch' on {config.device!r}: {e}", field="backend") from None
 
-    def prepare_views(self, scene, previous=None, hoods=None):
+    def prepare_views(self, scene, previous=None, hoods=None, index=None):
         from ..render.torch_view import prepare_torch, upload_torch
         gaussians = upload_torch(scene, device=self.config.device)
 
         def make(i: int):
-            keep = None if hoods is None else hoods[i][scene.view_id]
-            return prepare_torch(gaussians, scene.cameras[i], keep=keep)
+            return prepare_torch(gaussians, scene.cameras[i],
+                                 keep=held_mask(scene, hoods, i, index))
 
         views = PreparedViews(len(scene), scene.cameras, make, budget=None,
                               skip_unseen=self.incremental)
         return views, {}
+
+
+def held_mask(scene, hoods, j: int, index=None) -> np.ndarray | None:
+    """(N,) bool: the Gaussians of the views in camera j's neighbourhood ``hoods[j]``
+    (None without ``hoods``), through ``index`` (a ViewIndex of ``scene``) where given."""
+    if hoods is None:
+        return None
+    if index is None:
+        return hoods[j][scene.view_id]
+    return index.views_mask(hoods[j], len(scene))
 
 
 def backend_for(config: FilterConfig) -> FilterBackend:

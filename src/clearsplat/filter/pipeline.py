@@ -131,7 +131,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     state = RoundState.begin(scene, config, backend, extractor, report)     # times "proposal"
     state.plan = plan
     state.views, touched = backend.prepare_views(scene, previous,
-                                                 None if plan is None else plan.hoods)
+                                                 None if plan is None else plan.hoods,
+                                                 index=state.index)
     renders = exclusion_renders(state, touched, previous)                 # R_i, R_i^-i
     if previous is not None:    # every view taken or prepared again: drop what is left
         previous.release()

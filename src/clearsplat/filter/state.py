@@ -78,7 +78,7 @@ class RoundState:
         gap = np.abs(np.arange(v)[:, None] - np.arange(v)[None, :])
         left_out = gap <= config.leave_out
         return cls(scene, config, backend, index,
-                   own=[left_out[i][scene.view_id] for i in range(v)],
+                   own=[index.views_mask(left_out[i], len(scene)) for i in range(v)],
                    tau1=extractor.tau1 if config.tau1 is None else config.tau1,
                    tau2=extractor.tau2 if config.tau2 is None else config.tau2,
                    report=report, left_out=left_out)
