@@ -671,6 +671,33 @@ def test_take_mask_equals_numpy_take():
         _kernels.take_mask(np.ones(5, bool), np.array([-1], np.int32))
 
 
+def test_sort_index_equals_numpy_stable_sort():
+    from clearsplat.render import _kernels
+    rng = np.random.default_rng(3)
+    for v, high in ((0, 1), (1, 1), (1000, 50), (200_000, 2**31 - 1), (300_000, 1 << 22)):
+        index = rng.integers(0, high, v).astype(np.int32)
+        for threads in (1, 2):
+            values, order = _kernels.sort_index(index, threads)
+            assert values.dtype == order.dtype == np.int32
+            np.testing.assert_array_equal(values, np.sort(index))
+            np.testing.assert_array_equal(order, np.argsort(index, kind="stable"))
+    with pytest.raises(ValueError, match="negative"):
+        _kernels.sort_index(np.array([3, -1], np.int32))
+
+
+def test_removal_ids_from_indices_and_masks_agree(world):
+    # A removal given as Gaussian indices (looked up through the sorted visible index) and as
+    # a bool mask (gathered over the visible Gaussians) must touch the same tiles.
+    scene, rng = world
+    view = prepare(scene, scene.cameras[0], keep=rng.uniform(size=len(scene)) < 0.7)
+    for _ in range(5):
+        idx = rng.choice(len(scene), size=int(rng.integers(1, 6000)), replace=True)
+        mask = np.zeros(len(scene), bool)
+        mask[idx] = True
+        np.testing.assert_array_equal(view.tiles_touched(idx), view.tiles_touched(mask))
+        np.testing.assert_array_equal(view._ids(idx, "x"), view._ids(mask, "x"))
+
+
 def test_centres_inside_equals_numpy(world):
     scene, _ = world
     for cam in scene.cameras:

@@ -228,6 +228,39 @@ nb::tuple contributions(In<float> splats, In<int64_t> offsets, In<int32_t> lists
     return nb::make_tuple(owned(r.pixel, {m}), owned(r.id, {m}), owned(r.weight, {m}));
 }
 
+// The values of `index` (non-negative int32) in ascending order and the position of each in
+// `index` (stable): a view's visible Gaussians by Gaussian index, with their visible ids.
+nb::tuple sort_index(In<int32_t> index, int num_threads) {
+    const int64_t v = int64_t(index.size());
+    const size_t bytes = size_t(std::max<int64_t>(v, 1)) * sizeof(uint32_t);
+    uint32_t* keys = static_cast<uint32_t*>(std::malloc(bytes));
+    uint32_t* values = static_cast<uint32_t*>(std::malloc(bytes));
+    uint32_t* tmp = static_cast<uint32_t*>(std::malloc(2 * bytes));
+    if (!keys || !values || !tmp) {
+        std::free(keys), std::free(values), std::free(tmp);
+        throw std::bad_alloc();
+    }
+    const int32_t* idx = index.data();
+    bool bad = false;
+    {
+        nb::gil_scoped_release release;
+        for (int64_t i = 0; i < v; ++i) {
+            bad |= idx[i] < 0;
+            keys[i] = uint32_t(idx[i]);
+            values[i] = uint32_t(i);
+        }
+        if (!bad) cs::radix_sort_pairs(keys, values, v, tmp, tmp + std::max<int64_t>(v, 1),
+                                       threads(num_threads));
+    }
+    std::free(tmp);
+    if (bad) {
+        std::free(keys), std::free(values);
+        require(false, "negative index");
+    }
+    return nb::make_tuple(owned(reinterpret_cast<int32_t*>(keys), {size_t(v)}),
+                          owned(reinterpret_cast<int32_t*>(values), {size_t(v)}));
+}
+
 // out[i] = mask[index[i]]: a (N,) mask over the visible Gaussians of a view, without widening
 // the int32 indices first.
 nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index, int num_threads) {
@@ -317,6 +350,8 @@ NB_MODULE(_core, m) {
           "rgb"_a, "alpha"_a, "depth"_a, "num_threads"_a,
           "Re-composite (removal, tile) tasks into (tasks, 16, 16, ...) patches (in place); "
           "with a base render (empty arrays: none) only the pixels the removal can change.");
+    m.def("sort_index", &sort_index, "index"_a, "num_threads"_a = 1,
+          "(sorted values, their positions) of non-negative int32 indices, stable.");
     m.def("take_mask", &take_mask, "mask"_a, "index"_a, "num_threads"_a = 1,
           "mask[index] as uint8 (a keep mask over a view's visible Gaussians).");
     m.def("centres_inside", &centres_inside, "splats"_a, "index"_a, "n"_a, "width"_a, "height"_a,

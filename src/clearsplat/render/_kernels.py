@@ -18,7 +18,7 @@ import numpy as np
 from .. import _core
 
 __all__ = ["TILE", "project", "bin_tiles", "tiles_touched", "composite", "composite_patches",
-           "contributions", "max_threads"]
+           "contributions", "max_threads", "sort_index"]
 
 #: Tile edge in pixels (``cs::kTile``).
 TILE = 16
@@ -184,6 +184,12 @@ def restrict_view(splats, rects, index, offsets, lists, keep) -> tuple[int, int]
                              "prepared view's dtypes")
     num, pairs = _core.restrict_view(splats, rects, index, offsets, lists, _mask(keep))
     return int(num), int(pairs)
+
+
+def sort_index(index: np.ndarray, num_threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """``(np.sort(index), np.argsort(index, kind="stable"))`` as int32, for non-negative int32
+    indices (a radix sort)."""
+    return _core.sort_index(_c(index, np.int32), int(num_threads))
 
 
 def take_mask(mask: np.ndarray, index: np.ndarray, num_threads: int = 1) -> np.ndarray:

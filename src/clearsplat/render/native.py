@@ -71,7 +71,8 @@ class PreparedView(_TiledView):
         self._splats, self._rects, self._index = splats, rects, index
         self._offsets, self._lists = offsets, lists
         self._num_threads = num_threads
-        self._visible_id = None  # (N,) int32 Gaussian -> visible id or -1, built on demand
+        # (sorted visible Gaussian indices, their visible ids), int32 each, built on demand.
+        self._by_index = None
         self._floor = None  # (V,) bool over the held Gaussians that renders must keep (pruned)
 
     # -- properties ------------------------------------------------------------------------
@@ -87,7 +88,8 @@ class PreparedView(_TiledView):
     @property
     def memory_bytes(self) -> int:
         arrays = [self._splats, self._rects, self._index, self._offsets, self._lists]
-        arrays += [a for a in (self._visible_id, self._floor) if a is not None]
+        arrays += [a for a in (self._floor,) if a is not None]
+        arrays += list(self._by_index or ())
         # A restricted view holds the front of its arrays, and the whole of them in memory.
         return int(sum(a.base.nbytes if isinstance(a.base, np.ndarray) else a.nbytes
                        for a in arrays))
@@ -132,12 +134,15 @@ class PreparedView(_TiledView):
             seen = _kernels.take_mask(a, self._index, self._num_threads)
             return np.flatnonzero(seen).astype(np.int32)
         idx = _check_indices(a, self.num_gaussians, field)
-        if self._visible_id is None:
-            vid = np.full(self.num_gaussians, -1, dtype=np.int32)
-            vid[self._index] = np.arange(self.num_visible, dtype=np.int32)
-            self._visible_id = vid
-        ids = self._visible_id[idx]
-        ids = ids[ids >= 0]
+        if self._by_index is None:
+            # O(visible) memory, where a Gaussian -> visible id map would take 4 bytes per
+            # Gaussian of the scene in every view.
+            self._by_index = _kernels.sort_index(self._index, self._num_threads)
+        by_index, ids_by_index = self._by_index
+        if by_index.size == 0:
+            return np.empty(0, dtype=np.int32)
+        at = np.minimum(np.searchsorted(by_index, idx), by_index.size - 1)
+        ids = ids_by_index[at[by_index[at] == idx]]
         if ids.size < 4096:
             return np.unique(ids).astype(np.int32)
         flags = np.zeros(self.num_visible, dtype=bool)   # a scatter beats sorting large sets
@@ -451,7 +456,7 @@ class PreparedView(_TiledView):
         self._splats, self._rects, self._index = splats[:num], rects[:num], index[:num]
         self._offsets, self._lists = offsets, lists[:pairs]
         self.num_gaussians = int(np.count_nonzero(keep))
-        self._visible_id = None
+        self._by_index = None
         return self
 
     def subset(self, keep) -> "PreparedView":
