@@ -689,13 +689,16 @@ def test_removal_ids_from_indices_and_masks_agree(world):
     # A removal given as Gaussian indices (looked up through the sorted visible index) and as
     # a bool mask (gathered over the visible Gaussians) must touch the same tiles.
     scene, rng = world
-    view = prepare(scene, scene.cameras[0], keep=rng.uniform(size=len(scene)) < 0.7)
-    for _ in range(5):
-        idx = rng.choice(len(scene), size=int(rng.integers(1, 6000)), replace=True)
-        mask = np.zeros(len(scene), bool)
-        mask[idx] = True
-        np.testing.assert_array_equal(view.tiles_touched(idx), view.tiles_touched(mask))
-        np.testing.assert_array_equal(view._ids(idx, "x"), view._ids(mask, "x"))
+    # Mostly visible (a Gaussian -> visible id map) and a small part (a sorted index).
+    for share in (0.9, 0.1):
+        view = prepare(scene, scene.cameras[0], keep=rng.uniform(size=len(scene)) < share)
+        for _ in range(5):
+            idx = rng.choice(len(scene), size=int(rng.integers(1, 6000)), replace=True)
+            mask = np.zeros(len(scene), bool)
+            mask[idx] = True
+            np.testing.assert_array_equal(view.tiles_touched(idx), view.tiles_touched(mask))
+            np.testing.assert_array_equal(view._ids(idx, "x"), view._ids(mask, "x"))
+        assert len(view._by_index) == (1 if share > 0.5 else 2)
 
 
 def test_centres_inside_equals_numpy(world):

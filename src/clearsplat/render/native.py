@@ -71,7 +71,8 @@ class PreparedView(_TiledView):
         self._splats, self._rects, self._index = splats, rects, index
         self._offsets, self._lists = offsets, lists
         self._num_threads = num_threads
-        # (sorted visible Gaussian indices, their visible ids), int32 each, built on demand.
+        # Gaussian index -> visible id, built on demand: (map,) over every Gaussian (-1: not
+        # visible) or (sorted visible Gaussian indices, their visible ids), int32 each.
         self._by_index = None
         self._floor = None  # (V,) bool over the held Gaussians that renders must keep (pruned)
 
@@ -135,14 +136,25 @@ class PreparedView(_TiledView):
             return np.flatnonzero(seen).astype(np.int32)
         idx = _check_indices(a, self.num_gaussians, field)
         if self._by_index is None:
-            # O(visible) memory, where a Gaussian -> visible id map would take 4 bytes per
-            # Gaussian of the scene in every view.
-            self._by_index = _kernels.sort_index(self._index, self._num_threads)
-        by_index, ids_by_index = self._by_index
-        if by_index.size == 0:
-            return np.empty(0, dtype=np.int32)
-        at = np.minimum(np.searchsorted(by_index, idx), by_index.size - 1)
-        ids = ids_by_index[at[by_index[at] == idx]]
+            if 3 * self.num_visible >= self.num_gaussians:
+                # A view that sees much of the scene: a Gaussian -> visible id map (-1: not
+                # visible), quicker to build than a sort.
+                vid = np.full(self.num_gaussians, -1, dtype=np.int32)
+                vid[self._index] = np.arange(self.num_visible, dtype=np.int32)
+                self._by_index = (vid,)
+            else:
+                # A view of a small part (a neighbourhood of a dense capture): its visible
+                # Gaussians sorted by index, in memory of their number, not the scene's.
+                self._by_index = _kernels.sort_index(self._index, self._num_threads)
+        if len(self._by_index) == 1:
+            ids = self._by_index[0][idx]
+            ids = ids[ids >= 0]
+        else:
+            by_index, ids_by_index = self._by_index
+            if by_index.size == 0:
+                return np.empty(0, dtype=np.int32)
+            at = np.minimum(np.searchsorted(by_index, idx), by_index.size - 1)
+            ids = ids_by_index[at[by_index[at] == idx]]
         if ids.size < 4096:
             return np.unique(ids).astype(np.int32)
         flags = np.zeros(self.num_visible, dtype=bool)   # a scatter beats sorting large sets
