@@ -8,8 +8,10 @@ Usage::
     python benchmarks/filter_identity.py --check ref/ --ignore expanded_gaussians
 
 Runs ``filter_distractors`` on the stand-in scenes (object and street, 4, 8 and 16 views, at
-128x224 and 256x448; the default, ``paper-local`` and non-incremental configurations) and
-stores, per case, the removed Gaussians and the summary without its timings. ``--check``
+128x224 and 256x448; the default, ``paper-local`` and non-incremental configurations; with
+``--dense`` also the default at 24 views (object) and 32 views (street), 128x224, where each
+camera renders only its neighbourhood) and stores, per case, the removed Gaussians and the
+summary without its timings. ``--check``
 prints one line per case and exits 1 if any differs. Speed work must keep every case equal.
 """
 
@@ -21,6 +23,10 @@ import os
 import sys
 
 CONFIGS = ("default", "paper-local", "full-rerender")
+
+
+#: ``--dense`` cases: bounded neighbourhoods (``neighbours="auto"``), the default only.
+DENSE_CASES = (("object", 24, 128, 224), ("street", 32, 128, 224))
 
 
 def _cases(quick: bool):
@@ -82,24 +88,28 @@ def main(argv=None) -> int:
                         "changed on purpose, e.g. expanded_gaussians); removals always are")
     p.add_argument("--no-full", action="store_true",
                    help="skip the non-incremental configuration (slow at 16 views)")
+    p.add_argument("--dense", action="store_true",
+                   help="also the default at 24 and 32 views (128x224)")
     args = p.parse_args(argv)
     folder = args.save or args.check
     os.makedirs(folder, exist_ok=True)
     configs = [c for c in CONFIGS if not (args.no_full and c == "full-rerender")]
     bad = 0
-    for family, views, h, w in _cases(args.quick):
+    cases = [(c, configs) for c in _cases(args.quick)]
+    cases += [(c, ["default"]) for c in DENSE_CASES] if args.dense else []
+    for (family, views, h, w), case_configs in cases:
         name = f"{family}-{views}v-{h}x{w}"
         path = os.path.join(folder, name + ".json")
-        got = _run(family, views, h, w, configs, tuple(args.set))
+        got = _run(family, views, h, w, case_configs, tuple(args.set))
         if args.save:
             with open(path, "w") as f:
                 json.dump(got, f)
             print(f"saved {name}: " + ", ".join(f"{c} removes {len(got[c]['removed'])}"
-                                                for c in configs))
+                                                for c in case_configs))
             continue
         with open(path) as f:
             want = json.load(f)
-        for c in configs:
+        for c in case_configs:
             if c not in want:
                 print(f"{name} {c}: no reference")
                 continue
