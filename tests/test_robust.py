@@ -111,6 +111,38 @@ def test_relative_score_is_the_share_of_the_error_removed():
     assert Partial().relative_score == 0.0
 
 
+def test_median_pool_neither_carried_nor_vetoed_by_one_view():
+    from clearsplat.filter.verify import median_relative_score, passes
+    # Three verification views: two where the removal explains most of the error it touches
+    # (shares 0.62 and 0.46), one heavy view where it trades one large error for another
+    # (share -0.04 with most of the weight), and one view it does not change.
+    views = [Partial(0.291 * 62, 62, 0.291 * 62 / 0.62),
+             Partial(-0.029 * 142, 142, 0.029 * 142 / 0.04),
+             Partial(0.115 * 8, 8, 0.115 * 8 / 0.46), Partial()]
+    total = Partial()
+    for p in views:
+        total.add(p)
+    assert total.score > 0 and total.relative_score < 0.2          # vetoed when pooled
+    assert median_relative_score(views) == pytest.approx(0.46)     # the middle of 3 views
+    summed = FilterConfig()
+    median = FilterConfig(relative_score_pool="median")
+    assert not passes(total, summed, views) and passes(total, median, views)
+    # One view alone carrying a candidate that the others find no better: pooled it passes,
+    # the median of the views' shares does not.
+    carried = [Partial(30.0, 40.0, 40.0), Partial(0.1, 10.0, 20.0), Partial(0.05, 10.0, 20.0)]
+    total = Partial()
+    for p in carried:
+        total.add(p)
+    assert passes(total, summed, carried) and not passes(total, median, carried)
+    # The score condition stays pooled; without min_relative_score the pool does not matter.
+    assert not passes(Partial(-1.0, 2.0, 2.0), median, [Partial(3.0, 1.0, 3.0)] * 2)
+    loose = FilterConfig(relative_score_pool="median", min_relative_score=0.0)
+    assert passes(total, loose, [Partial(-1.0, 1.0, 1.0)] * 3)
+    assert median_relative_score([]) == 0.0 and median_relative_score([Partial()]) == 0.0
+    with pytest.raises(ClearsplatError):
+        FilterConfig(relative_score_pool="mean")
+
+
 def test_depth_scale_alignment_undoes_a_view_scale_bias():
     world = make_world("object", num_views=3, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
@@ -134,7 +166,7 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         cfg = FilterConfig.preset(name)
         assert not cfg.photometric_align and not cfg.depth_scale_align
         assert cfg.verify_tolerance == 0 and cfg.refine_tolerance == 0
-        assert cfg.min_relative_score == 0.0
+        assert cfg.min_relative_score == 0.0 and cfg.relative_score_pool == "sum"
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
         assert not cfg.expand_connected and cfg.refine_tolerance_depth
         assert cfg.depth_scale_reach == 0 and cfg.rounds == 1

@@ -60,6 +60,7 @@ ABLATIONS = {
     "+photo-align": "default+photometric_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
+    "+median-views": "default+relative_score_pool=median",
 }
 
 

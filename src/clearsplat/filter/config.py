@@ -266,6 +266,15 @@ class FilterConfig:
         explains most of the error where it changes the render; static content that the views
         merely place a little differently (pose error, depth scale) trades one error for another
         and scores a small share even when its score is positive. Default 0.2; 0: the paper.
+    relative_score_pool : {"sum", "median"}
+        How the individual test pools its verification views for ``min_relative_score``.
+        ``"sum"``: the share over all of them together (one view with a large change decides
+        alone, either way). ``"median"``: the median of each view's own share, over the views
+        where the removal changes a pixel, so that one view neither carries a candidate (a
+        surface only the candidate's view sees, smeared over another view's render) nor vetoes
+        it (pixels that neither render explains, where that view's own distractor or a
+        misplaced surface stands). The score condition (``min_score``) stays pooled over the
+        views, as in the paper.
     refine_passes : int
         How often ``refine="static-depth"`` builds its static reference. The first pass renders
         each view without every proposed Gaussian of the others; a proposal region covers whole
@@ -363,6 +372,7 @@ class FilterConfig:
     verify_tolerance: int = 0
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
+    relative_score_pool: Literal["sum", "median"] = "sum"
     refine_passes: int = 2
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
@@ -474,6 +484,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "verify_tolerance": FieldSpec("integer", 0),
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
+    "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
@@ -494,8 +505,8 @@ PRESETS = {
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
                           verify_tolerance=0, refine_tolerance=0,
-                          min_relative_score=0.0, refine_passes=1,
-                          expand_connected=False, refine_tolerance_depth=True,
+                          min_relative_score=0.0, relative_score_pool="sum",
+                          refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
@@ -503,10 +514,11 @@ PRESETS = {
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
                                 verify_tolerance=0, refine_tolerance=0,
-                                min_relative_score=0.0, refine_passes=1,
-                                expand_connected=False, refine_tolerance_depth=True,
-                                depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                                neighbours=None, verify_views="centres"),
+                                min_relative_score=0.0, relative_score_pool="sum",
+                                refine_passes=1, expand_connected=False,
+                                refine_tolerance_depth=True, depth_scale_reach=0, rounds=1,
+                                refine_color_grow=None, neighbours=None,
+                                verify_views="centres"),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").

@@ -37,8 +37,8 @@ from .association import ViewIndex
 from .robust import tolerant_images
 
 __all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views", "top_views",
-           "make_verifier", "exclusion_masks", "range_masks", "passes", "individual_tests",
-           "second_range_tests"]
+           "make_verifier", "exclusion_masks", "range_masks", "passes", "median_relative_score",
+           "individual_tests", "second_range_tests"]
 
 #: ``verify_mask="auto"`` leaves the proposal regions in verification (``"revealing"``) from
 #: this many views on (measured: needed at 8 and 16 views, harmful on clean 4-view scenes).
@@ -294,12 +294,25 @@ def range_masks(state, proposals) -> dict:
     return {r: exclusion_masks(proposals, r, mode) for r in (1, 2)}
 
 
-def passes(total: Partial, config) -> bool:
+def passes(total: Partial, config, per_view: list | None = None) -> bool:
     """A test's verdict: score above ``min_score`` and, where ``min_relative_score`` asks for
-    it, a large enough share of the error it touches explained by the removal."""
+    it, a large enough share of the error it touches explained by the removal: of ``total``,
+    or (``relative_score_pool="median"``, with ``per_view`` the terms of each verification
+    view) the median of the views' own shares (:func:`median_relative_score`)."""
     if not total.score > config.min_score:
         return False
-    return config.min_relative_score <= 0 or total.relative_score > config.min_relative_score
+    if config.min_relative_score <= 0:
+        return True
+    if per_view is not None and config.relative_score_pool == "median":
+        return median_relative_score(per_view) > config.min_relative_score
+    return total.relative_score > config.min_relative_score
+
+
+def median_relative_score(per_view: list) -> float:
+    """The median of :attr:`Partial.relative_score` over the views whose terms carry weight
+    (the removal changes a pixel there; 0 when none does)."""
+    shares = [p.relative_score for p in per_view if p.den > 0]
+    return float(np.median(shares)) if shares else 0.0
 
 
 def individual_tests(state, candidates: list, q: dict, verifier, renders) -> list:
@@ -321,6 +334,7 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
                     for i in range(state.num_views)}
     all_keep = np.ones(state.n, dtype=bool)
     totals = {c.index: Partial() for c in candidates}
+    per_view = {c.index: [] for c in candidates}     # each verification view's terms
     for c in candidates:
         c.verify_views = views_of[c.view]
     # Batch per verifying view: every candidate that view j verifies, in one call.
@@ -339,13 +353,14 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
                                             q[rng][j])
                 for c, p in zip(batch, parts):
                     totals[c.index].add(p)
+                    per_view[c.index].append(p)
         state.report("individual", j + 1, state.num_views)
     for c in candidates:
         c.scores["individual"] = totals[c.index].score
         if c.gaussians.size == 0:
             c.reason = ("no Gaussians in region" if config.refine == "none"
                         else "no Gaussians left: none survived refinement")
-        elif passes(totals[c.index], config):
+        elif passes(totals[c.index], config, per_view[c.index]):
             c.reason = "passed individual test"
         else:
             c.reason = "rejected by individual test"
