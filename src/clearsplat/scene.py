@@ -203,8 +203,7 @@ class Gaussians:
             raise ClearsplatError(f"scales must be positive (first bad Gaussian {i})",
                                   path=path, field="scales")
         if n:
-            q = self.quats.astype(np.float64)
-            qn = np.sqrt(np.einsum("ij,ij->i", q, q))
+            qn = np.sqrt(np.einsum("ij,ij->i", self.quats, self.quats, dtype=np.float64))
             if not qn.min() > 1e-12:
                 i = int(np.argmin(qn))
                 raise ClearsplatError(f"zero quaternion (first at Gaussian {i})",
