@@ -11,7 +11,9 @@ Usage::
 Each view count runs in a fresh subprocess so that its peak resident memory is its own.
 Times are medians over ``--repeats`` runs of the default filter (incremental verification) and
 over ``--full-repeats`` runs of the same filter with ``incremental=False`` (whole images
-re-rendered for every candidate and view); both runs must produce identical output. *min-max*
+re-rendered for every candidate and view); both runs must produce identical output. With
+``--device cuda`` the second set of runs is the native CPU filter instead, and *GPU peak* the
+most GPU memory PyTorch allocated during the device runs. *min-max*
 is the range of the incremental runs' totals, *first* the first of them (a fresh process: what
 a single ``clearsplat filter`` call sees, page faults of new memory included). *prepared* counts
 camera preparations per run (the number of views, plus views prepared again because they did
@@ -79,9 +81,15 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
                 if r.proposals else 0.0,
                 "cpu": cpu}
 
+    gpu = device != "cpu"
+    if gpu:
+        import torch
+        torch.cuda.reset_peak_memory_stats(device)
     inc = [run(cfg) for _ in range(repeats)]
-    # On a GPU the second set of runs is the CPU filter: the same decisions are expected.
-    other = cfg.replace(incremental=False) if device == "cpu" else cfg.replace(device="cpu")
+    gpu_peak = torch.cuda.max_memory_allocated(device) / 1e9 if gpu else None
+    # On a GPU the second set of runs is the native CPU filter: the same decisions are expected.
+    other = (cfg.replace(incremental=False) if not gpu
+             else cfg.replace(device="cpu", backend="auto"))
     full = [run(other) for _ in range(full_repeats)]
     same = all(np.array_equal(inc[0]["keep"], r["keep"]) for r in inc + full)
 
@@ -102,6 +110,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "accepted": inc[0]["accepted"],
         "identical_output": bool(same),
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+        "gpu_peak_gb": gpu_peak,
         "views_prepared": inc[0]["stats"].get("views_prepared", 0),
         "views_derived": inc[0]["stats"].get("views_derived", 0),
         "views_skipped": inc[0]["stats"].get("views_skipped", 0),
@@ -116,6 +125,7 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     }
     out["steps"] = {k: med(inc, k) for k in inc[0]["timings"] if "." in k}
     if full:
+        out["full_total_s"] = med(full, "total")
         out["full_verification_s"] = med(full, "verification")
         out["speedup"] = out["full_verification_s"] / out["verification_s"]
     return out
@@ -162,7 +172,10 @@ def main(argv=None) -> int:
             cmd += ["--set", item]
         res = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
-        print(f"  done: {v} views", file=sys.stderr)
+        print(f"  done: {v} views, {rows[-1]['total_s']:.2f} s", file=sys.stderr)
+        if args.json:      # row by row, so that a run stopped early keeps what it measured
+            with open(args.json, "w") as f:
+                json.dump(rows, f, indent=1)
     print(f"clearsplat filter speed — {args.family} scenes at {w}x{h}, "
           f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
           f"{os.getloadavg()[0]:.1f}; medians of {args.repeats} (incremental) / "
@@ -191,15 +204,13 @@ def main(argv=None) -> int:
               f"{r['total_s'] / base['total_s']:>7.2f} "
               f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
               f"{r.get('views_derived', 0):>8} {r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} {r['views_pruned_gb']:>10.2f} "
-              f"{r['memory_estimate_gb']:>12.2f} {100 * r.get('proposed_share', 0.0):>8.1f}%")
+              f"{r['memory_estimate_gb']:>12.2f} {100 * r.get('proposed_share', 0.0):>8.1f}%"
+              + (f"   GPU peak {r['gpu_peak_gb']:.2f} GB" if r.get("gpu_peak_gb") else ""))
     steps = list(dict.fromkeys(k for r in rows for k in r["steps"]))
     print("\nwhere the time goes (seconds, medians):")
     print(f"{'step':<32}" + "".join(f"{str(r['views']) + ' views':>10}" for r in rows))
     for k in steps:
         print(f"{k:<32}" + "".join(f"{r['steps'].get(k, 0.0):>10.2f}" for r in rows))
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1)
     return 0
 
 

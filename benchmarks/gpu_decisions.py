@@ -1,4 +1,5 @@
-"""The filter on a GPU against the CPU filter: the same decisions? (needs CUDA and gsplat)
+"""The filter on a GPU against the CPU filter: the same decisions? (needs CUDA; gsplat too unless
+``--set backend=torch``)
 
 Usage::
 
@@ -6,7 +7,8 @@ Usage::
                                        [--set KEY=VALUE ...]
 
 For each view count, one stand-in scene; the default config (with the ``--set`` options) runs
-twice with ``device="cuda"`` (the GPU path must agree with itself) and once on the CPU. Prints
+twice with ``device="cuda"`` (the GPU path must agree with itself) and once with the native CPU
+filter (``--set backend=torch`` measures the torch backend on the GPU against it). Prints
 the seconds of each run, the Gaussians each removes, how many differ, the candidate counts and
 the largest difference of an individual score between candidates at the same index.
 """
@@ -43,7 +45,8 @@ def main(argv=None) -> int:
         scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
         runs = {}
         for name, cfg in (("gpu1", base.replace(device=args.device)),
-                          ("gpu2", base.replace(device=args.device)), ("cpu", base)):
+                          ("gpu2", base.replace(device=args.device)),
+                          ("cpu", base.replace(device="cpu", backend="auto"))):
             t = time.perf_counter()
             runs[name] = filter_distractors(scene, config=cfg, extractor=extractor)
             print(f"{views:>5} {name:>5} {time.perf_counter() - t:>8.2f} "

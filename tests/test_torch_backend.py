@@ -35,6 +35,9 @@ from clearsplat.synth.backbone import reconstruct  # noqa: E402
 from clearsplat.synth.worlds import make_world  # noqa: E402
 
 TOL = 1e-5
+# The CUDA twins of the CPU tests below run where PyTorch sees a GPU and skip elsewhere.
+ON_DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs PyTorch with a CUDA GPU"))]
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -105,8 +108,11 @@ def test_projection_binning_and_order_are_the_native_ones(pair):
     np.testing.assert_array_equal(tv.centres_inside(), pv.centres_inside())
 
 
-def test_render_matches_native_and_reference(pair):
+@pytest.mark.parametrize("device", ON_DEVICES)
+def test_render_matches_native_and_reference(pair, device):
     pv, tv, g, settings = pair
+    if device != "cpu":
+        tv = prepare_torch(g, tv.camera, settings=settings, device=device)
     keep = np.random.default_rng(5).random(len(g)) > 0.3
     for k, bg in ((None, (0.0, 0.0, 0.0)), (keep, (0.2, 0.5, 1.0))):
         out = tv.render(keep=k, background=bg)
@@ -257,14 +263,15 @@ def decisions(result):
              None if c.expanded is None else c.expanded.tolist()) for c in result.candidates]
 
 
+@pytest.mark.parametrize("device", ON_DEVICES)
 @pytest.mark.parametrize("family,views,height,width",
                          [("object", 4, 64, 112), ("street", 4, 48, 80), ("object", 8, 32, 64)])
-def test_the_filter_makes_the_native_decisions(family, views, height, width):
+def test_the_filter_makes_the_native_decisions(family, views, height, width, device):
     world = make_world(family, num_views=views, seed=1, height=height, width=width)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
     extractor = get_extractor("local")
     native = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
-    config = FilterConfig(backend="torch")
+    config = FilterConfig(backend="torch", device=device)
     assert isinstance(backend_for(config), TorchBackend) and backend_for(config).incremental
     result = filter_distractors(scene, config=config, extractor=extractor)
     assert native.removed.sum() > 0 and sum(c.accepted for c in native.candidates) > 0
@@ -275,29 +282,31 @@ def test_the_filter_makes_the_native_decisions(family, views, height, width):
             assert abs(a.scores[test] - score) < 1e-5, (a.index, test)
 
 
-def test_filter_prediction_gives_the_keep_mask_on_the_device():
+@pytest.mark.parametrize("device", ON_DEVICES)
+def test_filter_prediction_gives_the_keep_mask_on_the_device(device):
     world = make_world("object", num_views=4, seed=2, height=48, width=80)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=2)
     native = filter_distractors(scene)
-    keep = filter_prediction(scene, device="cpu")
+    keep = filter_prediction(scene, device=device)
     assert isinstance(keep, torch.Tensor) and keep.dtype == torch.bool
-    assert keep.device == torch.device("cpu") and tuple(keep.shape) == (len(scene),)
-    np.testing.assert_array_equal(keep.numpy(), native.keep)
+    assert keep.device.type == device and tuple(keep.shape) == (len(scene),)
+    np.testing.assert_array_equal(keep.cpu().numpy(), native.keep)
     assert not native.keep.all()
-    mask = native.keep_tensor(torch.device("cpu"))
+    mask = native.keep_tensor(torch.device(device))
     assert mask.dtype == torch.bool and torch.equal(mask, keep)
     with pytest.raises(ClearsplatError) as e:
         filter_prediction(scene, device="tpu")
     assert e.value.field == "device"
 
 
-def test_cli_filter_with_the_torch_backend(tmp_path, capsys):
+@pytest.mark.parametrize("device", ON_DEVICES)
+def test_cli_filter_with_the_torch_backend(tmp_path, capsys, device):
     world = make_world("object", num_views=4, seed=1, height=48, width=80)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
     scene.save(tmp_path / "scene")
     assert main(["filter", str(tmp_path / "scene"), "--out", str(tmp_path / "native")]) == 0
     assert main(["filter", str(tmp_path / "scene"), "--out", str(tmp_path / "torch"),
-                 "--set", "backend=torch", "--set", "device=cpu"]) == 0
+                 "--set", "backend=torch", "--set", f"device={device}"]) == 0
     capsys.readouterr()
     removed = np.load(tmp_path / "torch" / "removed.npy")
     assert 0 < removed.sum() < removed.size // 10
