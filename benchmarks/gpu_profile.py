@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/gpu_profile.py [--views 16] [--resolution 256x448] [--family object]
+    python benchmarks/gpu_profile.py [--views 8] [--resolution 256x448] [--family object]
                                      [--device cuda] [--set KEY=VALUE ...] [--trace FILE]
 
 One stand-in scene; the filter runs once to warm up (module loads, allocator, lookups) and
@@ -22,7 +22,7 @@ import time
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--views", type=int, default=16)
+    p.add_argument("--views", type=int, default=8)
     p.add_argument("--resolution", default="256x448", help="HxW")
     p.add_argument("--family", default="object")
     p.add_argument("--seed", type=int, default=0)

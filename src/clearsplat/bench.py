@@ -61,6 +61,7 @@ ABLATIONS = {
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
     "+median-views": "default+relative_score_pool=median",
+    "+support-margin": "default+support_margin=0.0001",
 }
 
 

@@ -140,6 +140,12 @@ class FilterConfig:
         paper's 0.50 and 0.70 for DINO).
     eta : float
         Support: minimum patch-mean accumulated opacity of the exclusion render [eta].
+    support_margin : float
+        Support: how much farther, as a share of the depth, the exclusion must reveal a surface
+        (the patch-mean depth of R_i^-i beyond that of R_i). Where a view's own Gaussians hide
+        nothing, the two renders hold the same surface and their depths differ by rounding
+        alone; the paper's strict comparison (0) then lets rounding decide about a third of
+        each view's patches.
     num_verify_views : int
         Verification views per candidate [n_v].
     epsilon : float
@@ -346,6 +352,7 @@ class FilterConfig:
     tau1: float | None = None
     tau2: float | None = None
     eta: float = 0.50
+    support_margin: float = 0.0
     num_verify_views: int = 3
     epsilon: float = 0.002
     dilation: int = 9
@@ -457,6 +464,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "tau1": FieldSpec("number", -1.0, 1.0, optional=True),
     "tau2": FieldSpec("number", -1.0, 1.0, optional=True),
     "eta": _unit(),
+    "support_margin": _unit(),
     "num_verify_views": FieldSpec("integer", 1),
     "epsilon": FieldSpec("number", 0.0, 3.0),           # L1 over RGB in [0, 1]: at most 3
     "dilation": FieldSpec("integer", 0),
@@ -504,7 +512,7 @@ PRESETS = {
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
-                          verify_tolerance=0, refine_tolerance=0,
+                          verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                           min_relative_score=0.0, relative_score_pool="sum",
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           depth_scale_reach=0, rounds=1, refine_color_grow=None,
@@ -513,7 +521,7 @@ PRESETS = {
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
-                                verify_tolerance=0, refine_tolerance=0,
+                                verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                                 min_relative_score=0.0, relative_score_pool="sum",
                                 refine_passes=1, expand_connected=False,
                                 refine_tolerance_depth=True, depth_scale_reach=0, rounds=1,
