@@ -249,3 +249,25 @@ def test_held_masks_through_the_view_index_equal_the_gather(street):
         for j in range(s.num_views):
             np.testing.assert_array_equal(held_mask(s, hoods, j, index), hoods[j][s.view_id])
         assert held_mask(s, None, 0, index) is None
+
+
+def test_own_masks_are_built_when_asked_and_equal_the_gather(street):
+    # RoundState.own builds each view's left-out mask on demand (with leave_out, the views
+    # around it too); each must equal left_out[i][view_id], and none may be written to.
+    from clearsplat.filter.association import ViewIndex
+    from clearsplat.filter.state import OwnMasks
+    scene, _ = street
+    shuffled = scene.subset(np.random.default_rng(1).permutation(len(scene)))
+    v = scene.num_views
+    for s in (scene, shuffled):
+        for leave_out in (0, 2):
+            gap = np.abs(np.arange(v)[:, None] - np.arange(v)[None, :])
+            left_out = gap <= leave_out
+            own = OwnMasks(ViewIndex(s), left_out, len(s))
+            assert len(own) == v
+            for i in (0, 3, 3, v - 1, -1, 1):
+                np.testing.assert_array_equal(own[i], left_out[i][s.view_id])
+                with pytest.raises(ValueError):
+                    own[i][0] = True
+            with pytest.raises(IndexError):
+                own[v]
