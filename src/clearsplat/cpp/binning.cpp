@@ -104,7 +104,7 @@ BinResult bin_tiles(const Rect* rects, int64_t num, int grid_w, int grid_h, int 
 TileSets tiles_touched(const Rect* rects, const int64_t* group_offsets, const int32_t* ids,
                        int64_t num_groups, int grid_w, int grid_h, int num_threads) {
     std::vector<std::vector<int32_t>> sets(num_groups);
-#pragma omp parallel num_threads(num_threads)
+#pragma omp parallel num_threads(team_size(num_threads, num_groups))
     {
         std::vector<uint8_t> seen(size_t(grid_w) * grid_h, 0);
 #pragma omp for schedule(dynamic, 1)

@@ -236,7 +236,7 @@ void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tile
                      int64_t num_tiles, const float bg[3], float* rgb, float* alpha,
                      float* depth, int num_threads) {
     if (!tiles) num_tiles = v.num_tiles();
-#pragma omp parallel num_threads(num_threads)
+#pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {
         TileState s;
 #pragma omp for schedule(dynamic, 1)
@@ -258,7 +258,7 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
                           float* rgb_a, float* alpha_a, float* depth_a, float* rgb_b,
                           float* alpha_b, float* depth_b, int num_threads) {
     if (!tiles) num_tiles = v.num_tiles();
-#pragma omp parallel num_threads(num_threads)
+#pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {
         TileState a, b;
 #pragma omp for schedule(dynamic, 1)
@@ -287,7 +287,7 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
     const int64_t num_tasks = task_offsets[num_removals];
     // Bucket each removal's ids by the tasks (tiles) whose lists they are in.
     std::vector<std::vector<int32_t>> removed(num_tasks);
-#pragma omp parallel num_threads(num_threads)
+#pragma omp parallel num_threads(team_size(num_threads, num_removals))
     {
         std::vector<int32_t> local(size_t(v.num_tiles()), -1);
 #pragma omp for schedule(dynamic, 1)
@@ -305,7 +305,7 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
             for (int64_t j = task_offsets[r]; j < task_offsets[r + 1]; ++j) local[task_tiles[j]] = -1;
         }
     }
-#pragma omp parallel num_threads(num_threads)
+#pragma omp parallel num_threads(team_size(num_threads, num_tasks))
     {
         TileState s;
         alignas(64) uint8_t changed[kTilePixels];

@@ -143,4 +143,11 @@ struct ContribResult {
 ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_t* mask,
                             int num_threads);
 
+// Threads for a parallel loop over `items` independent pieces of work: never more than the
+// pieces, so that a loop over one or two tiles or removals runs on the calling thread (on a
+// busy machine a parallel region can wait a scheduler slice for a thread that is not running).
+inline int team_size(int num_threads, int64_t items) {
+    return int(items < 1 ? 1 : (items < num_threads ? items : (num_threads < 1 ? 1 : num_threads)));
+}
+
 }  // namespace cs
