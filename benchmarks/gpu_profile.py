@@ -7,8 +7,8 @@ Usage::
 
 One stand-in scene; the filter runs once to warm up (module loads, allocator, lookups) and
 once under ``torch.profiler``. Prints the run's seconds, the seconds the device spent in
-kernels and copies, the counts of the CUDA runtime calls (kernel launches, copies, syncs), the filter's per-step seconds, and the ops that take the most device time and
-the most host time. When the kernels' time is a small share of the run, the run is bound by
+kernels and copies, the counts of the CUDA runtime calls (kernel launches, copies, syncs), the
+filter's per-step seconds, and the ops that take the most device time and the most host time. When the kernels' time is a small share of the run, the run is bound by
 launches and host work, not by the GPU. ``--trace`` writes a Chrome trace
 (``chrome://tracing``, Perfetto). Also runs with ``--device cpu`` (no kernel rows then).
 """
@@ -63,17 +63,13 @@ def main(argv=None) -> int:
             torch.cuda.synchronize()
         wall = time.perf_counter() - t
     events = prof.events()
-
-    def count(pred):
-        return sum(1 for e in events if pred(e.name))
-
     avg = prof.key_averages()
     # Device time: the device-side rows alone (kernels, copies, memsets), as the table's footer
     # sums them; the aten rows above them carry the same time again.
     device_us = sum(e.self_device_time_total for e in avg if str(e.device_type).endswith("CUDA"))
     # CUDA runtime calls on the host (launches, copies, syncs), by name and count.
     runtime = collections.Counter(e.name for e in events if e.name.startswith("cu"))
-    aten = count(lambda n: n.startswith("aten::"))
+    aten = sum(1 for e in events if e.name.startswith("aten::"))
     print(f"clearsplat on {args.device}"
           + (f" ({torch.cuda.get_device_name()})" if cuda else "")
           + f" — {args.family}, {args.views} views at {w}x{h}, {len(scene):,} Gaussians, "

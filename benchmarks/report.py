@@ -583,9 +583,11 @@ the GPU exactly as on CPU tensors (per view of the 8-view scene, the same larges
 both devices). At 8 views and 256x448 that rounding flips a few decisions, on CPU tensors too
 (140 Gaussians differ there, 205 on the GPU): the support condition compares patch mean depths
 before and after the exclusion, and about a third of each view's patches differ by less than
-1e-5 of their depth, where rounding decides. With `support_margin=1e-4`, which asks for a
-surface farther by more than rounding (`docs/method.md`), the backend on CPU tensors makes the
-native decisions on that scene exactly (measured on the 2-core VM). The CUDA tests (`python -m pytest
+1e-5 of their depth, where rounding decides (`python benchmarks/support_rounding.py`). With
+`support_margin=1e-4`, which asks for a surface farther by more than rounding
+(`docs/method.md`), the backend on CPU tensors makes the native decisions on that scene exactly
+(`python benchmarks/gpu_decisions.py --views 8 --device cpu --set backend=torch --set
+support_margin=0.0001`: 0 Gaussians differ, 277 candidates each). The CUDA tests (`python -m pytest
 tests/test_torch_backend.py -k cuda`: renders against the native rasterizer and the reference,
 the filter's decisions at 4 and 8 views on the tests' small scenes, the keep mask on the device,
 the CLI) passed there: 10 passed.

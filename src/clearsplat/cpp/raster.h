@@ -147,7 +147,7 @@ ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_
 // pieces, so that a loop over one or two tiles or removals runs on the calling thread (on a
 // busy machine a parallel region can wait a scheduler slice for a thread that is not running).
 inline int team_size(int num_threads, int64_t items) {
-    return int(items < 1 ? 1 : (items < num_threads ? items : (num_threads < 1 ? 1 : num_threads)));
+    return items < num_threads ? int(items > 1 ? items : 1) : num_threads;
 }
 
 }  // namespace cs
