@@ -316,3 +316,35 @@ def test_every_candidate_is_expanded_and_only_the_accepted_removed(result):
         # the region lies within the support, so its dilation holds its own Gaussians
         assert set(c.gaussians.tolist()) <= set(c.expanded.tolist())
     np.testing.assert_array_equal(result.removed, union)
+
+
+def test_view_index_matches_a_direct_search_and_returns_int64():
+    # Shuffled views, several Gaussians per pixel, some without a pixel id.
+    rng = np.random.default_rng(5)
+    cams = [Camera(K=[[40.0, 0, 16], [0, 40.0, 12], [0, 0, 1]],
+                   camera_to_world=look_at((x, 0, 0), (0, 0, 5), up=(0.0, -1.0, 0.0)),
+                   width=32, height=24) for x in (-0.5, 0.0, 0.5)]
+    n = 5000
+    view_id = rng.integers(0, 3, n)
+    pixel_id = rng.integers(-1, 32 * 24, n)
+    means = np.stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), np.full(n, 5.0)], 1)
+    g = Gaussians(means, np.full((n, 3), 0.05), np.tile([1.0, 0, 0, 0], (n, 1)),
+                  np.full(n, 0.9), np.zeros((n, 1, 3)))
+    scene = Scene(g, view_id, pixel_id, cams)
+    index = ViewIndex(scene)
+    for v in range(3):
+        expected = np.flatnonzero(view_id == v)
+        assert np.array_equal(index.members[v], expected)
+        assert np.array_equal(index.pixels[v], pixel_id[expected])
+        # Held narrow where it fits: int32 indices, half the memory of int64.
+        assert index.members[v].dtype == np.int32 and index.pixels[v].dtype == np.int32
+        flat = rng.choice(32 * 24, 50, replace=False)
+        got = index.at_pixels(v, flat)
+        assert got.dtype == np.int64
+        want = expected[np.isin(pixel_id[expected], flat)]
+        assert np.array_equal(np.sort(got), want)
+        region = np.zeros(32 * 24, bool)
+        region[flat] = True
+        chosen = region_gaussians(scene, v, region.reshape(24, 32), index=index)
+        assert chosen.dtype == np.int64
+        assert np.array_equal(chosen[np.isin(chosen, want)], want)

@@ -21,10 +21,16 @@ class ViewIndex:
     """Per-view lists of Gaussian indices and their pixel ids, built once per scene."""
 
     def __init__(self, scene: Scene):
+        # Indices and pixel ids are held as int32 where they fit (half the memory of int64 at
+        # millions of Gaussians); what the methods return is int64.
+        small = len(scene) < 2**31
         order = np.argsort(scene.view_id, kind="stable")
+        if small:
+            order = order.astype(np.int32)
         bounds = np.searchsorted(scene.view_id[order], np.arange(scene.num_views + 1))
         self.members = [order[bounds[i]:bounds[i + 1]] for i in range(scene.num_views)]
-        self.pixels = [scene.pixel_id[m] for m in self.members]
+        self.pixels = [_narrow(scene.pixel_id[m], cam.width * cam.height)
+                       for m, cam in zip(self.members, scene.cameras)]
         # Pixel -> Gaussians of each view as CSR (pixel-aligned Gaussians only): a region's
         # Gaussians are then gathered in time proportional to the region, not the view.
         self._by_pixel = []
@@ -33,7 +39,7 @@ class ViewIndex:
             aligned = np.flatnonzero(pid >= 0)
             by = aligned[np.argsort(pid[aligned], kind="stable")]
             starts = np.searchsorted(pid[by], np.arange(cam.width * cam.height + 1))
-            self._by_pixel.append((self.members[i][by], starts))
+            self._by_pixel.append((self.members[i][by], _narrow(starts, len(scene))))
 
     def at_pixels(self, view: int, flat_pixels: np.ndarray) -> np.ndarray:
         """Pixel-aligned Gaussians of ``view`` at the given flat pixel indices (unsorted)."""
@@ -43,8 +49,8 @@ class ViewIndex:
         if counts.sum() == 0:
             return np.empty(0, dtype=np.int64)
         # Concatenate the ranges [lo, hi) without a Python loop.
-        offsets = np.repeat(lo - np.cumsum(counts) + counts, counts)
-        return gaussians[offsets + np.arange(counts.sum())]
+        offsets = np.repeat(lo.astype(np.int64) - np.cumsum(counts) + counts, counts)
+        return gaussians[offsets + np.arange(counts.sum())].astype(np.int64)
 
     def mask(self, view: int, n: int) -> np.ndarray:
         """(N,) bool mask of the Gaussians of ``view``."""
@@ -59,6 +65,12 @@ class ViewIndex:
         for v in np.flatnonzero(views):
             out[self.members[v]] = True
         return out
+
+
+def _narrow(values: np.ndarray, bound: int) -> np.ndarray:
+    """``values`` as int32 where every value lies in [-1, ``bound``] and that fits, else as
+    they are."""
+    return values.astype(np.int32) if bound < 2**31 - 1 else values
 
 
 def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: ViewIndex,

@@ -15,6 +15,9 @@ import numpy as np
 from ..features import upsample_nearest
 from .masks import label8
 
+#: Views whose image pairs :func:`propose` stacks at once for the extractor.
+_SIMILARITY_BATCH = 8
+
 __all__ = [
     "ViewProposal", "Region", "cell_index_map", "patch_means", "support_condition",
     "proposal_ranges", "connected_regions", "propose_view", "propose",
@@ -208,10 +211,17 @@ def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
     their regions M_k.
     """
     config, excl, full = state.config, renders.excl, renders.full
-    pair = (np.stack(images), np.stack([r.rgb for r in excl]))
-    # Threads as the rasterizer's (config.num_threads), for extractors that use them.
-    sims = (extractor.similarity(*pair, workers=config.num_threads)
-            if getattr(extractor, "pairs_in_threads", False) else extractor.similarity(*pair))
+    sims = []
+    # A few views at a time: two stacks of every view's image would hold 2 x V images at
+    # once (0.18 GB at 64 views of 256x448); the similarity of a pair does not depend on
+    # the others in its batch.
+    for start in range(0, state.num_views, _SIMILARITY_BATCH):
+        part = range(start, min(start + _SIMILARITY_BATCH, state.num_views))
+        pair = (np.stack([images[i] for i in part]), np.stack([excl[i].rgb for i in part]))
+        # Threads as the rasterizer's (config.num_threads), for extractors that use them.
+        sims.extend(extractor.similarity(*pair, workers=config.num_threads)
+                    if getattr(extractor, "pairs_in_threads", False)
+                    else extractor.similarity(*pair))
     state.lap("features")
     proposals = []
     for i in range(state.num_views):

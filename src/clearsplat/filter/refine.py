@@ -310,7 +310,7 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
     ``pixel_id`` where the model is pixel-aligned, otherwise the pixel its centre projects to.
     """
     members = index.members[view]
-    pix = index.pixels[view].copy()
+    pix = index.pixels[view].astype(np.int64)
     loose = pix < 0
     if loose.any():
         cam = scene.cameras[view]
