@@ -565,7 +565,7 @@ street --repeats 1`, and `python benchmarks/gpu_decisions.py --views 4,8 --set b
 (the CPU totals, and two GPU runs that agree with each other). The 64-view row did not finish
 within the time we had on the machine. For scale: the paper reports 3.24 s (DepthSplat, 8
 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090; the 2-core VM of "Speed" above takes
-3.62 and 10.55 s.
+3.84 and 11.31 s.
 
 **Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 8` (same
 machine): 9.1 s under the profiler, of which the GPU is busy 2.9 s (31 %); the filter issues
