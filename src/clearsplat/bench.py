@@ -62,6 +62,7 @@ ABLATIONS = {
     "+rel-score=0.5": "default+min_relative_score=0.5",
     "+median-views": "default+relative_score_pool=median",
     "+support-margin": "default+support_margin=0.0001",
+    "+align-depths": "default+align_depths=true",
 }
 
 

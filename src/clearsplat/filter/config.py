@@ -237,6 +237,13 @@ class FilterConfig:
         render there before the similarity, the colour test of ``refine_color`` and the
         verification errors (:func:`clearsplat.filter.robust.photometric_alignment`): views that
         differ in exposure or white balance then compare like with like. False: the paper.
+    align_depths : bool
+        Before anything else, move each view's Gaussians along their camera rays to the other
+        views' depth scale (:mod:`clearsplat.filter.align`): a view predicted a few percent too
+        far places its distractors behind the surface that the other views render, where no
+        verification view sees them. The scales are measured from the pixel-aligned
+        predictions (views without pixel ids keep theirs); the output refers to the input's
+        Gaussians. False: the paper (the prediction as it is).
     depth_scale_align : bool
         Judge "in front of the static surface" (``refine``) in each view's own depth scale: its
         depths divided by their median ratio to the static reference first, and the margin
@@ -375,6 +382,7 @@ class FilterConfig:
     prune_views: bool = False
     device: str = "cpu"
     photometric_align: bool = False
+    align_depths: bool = False
     depth_scale_align: bool = True
     verify_tolerance: int = 0
     refine_tolerance: int | str = "auto"
@@ -488,6 +496,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "prune_views": FieldSpec("bool"),
     "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
     "photometric_align": FieldSpec("bool"),
+    "align_depths": FieldSpec("bool"),
     "depth_scale_align": FieldSpec("bool"),
     "verify_tolerance": FieldSpec("integer", 0),
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
@@ -512,6 +521,7 @@ PRESETS = {
     "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
                           refine="none", verify_mask="proposals", verify_holes="count",
                           min_score=0.0, photometric_align=False, depth_scale_align=False,
+                          align_depths=False,
                           verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                           min_relative_score=0.0, relative_score_pool="sum",
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
@@ -521,6 +531,7 @@ PRESETS = {
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
                                 min_score=0.0, photometric_align=False, depth_scale_align=False,
+                                align_depths=False,
                                 verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                                 min_relative_score=0.0, relative_score_pool="sum",
                                 refine_passes=1, expand_connected=False,

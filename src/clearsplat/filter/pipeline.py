@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import ClearsplatError
 from ..features import get_extractor
 from ..scene import Scene
+from .align import aligned_scene, view_depth_alignment
 from .association import RegionMap, prune_views
 from .backend import backend_for
 from .config import FilterConfig
@@ -86,6 +87,8 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                                   **({"checkpoint": config.checkpoint} if dino else {}))
     report = progress or (lambda stage, done, total: None)
     backend = backend_for(config)
+    if config.align_depths:     # the same Gaussians, in the same order, at the views' scale
+        scene = aligned_scene(scene, view_depth_alignment(scene))
     rounds = config.rounds
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
