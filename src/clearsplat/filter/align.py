@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import Gaussians, Scene
+from .association import view_members
 
 __all__ = ["view_depth_alignment", "aligned_scene"]
 
@@ -61,9 +62,7 @@ def view_depth_alignment(scene: Scene, *, samples: int = _SAMPLES) -> np.ndarray
     and take no part.
     """
     v_count = scene.num_views
-    order = np.argsort(scene.view_id, kind="stable")
-    bounds = np.searchsorted(scene.view_id[order], np.arange(v_count + 1))
-    members = [order[bounds[i]:bounds[i + 1]] for i in range(v_count)]
+    members = view_members(scene)
     maps = _depth_maps(scene, members)
     rows, values = [], []
     for i in range(v_count):
@@ -113,11 +112,15 @@ def aligned_scene(scene: Scene, scales: np.ndarray) -> Scene:
     """A copy of ``scene`` whose view-i Gaussians are scaled by ``1 / scales[i]`` about the
     centre of camera i: positions along their rays and sizes, so that camera i sees them at
     the same pixels with the same footprints. Everything else is shared."""
-    factor = (1.0 / np.asarray(scales, dtype=np.float64))[scene.view_id]
-    centres = np.stack([c.position for c in scene.cameras])[scene.view_id]
     g = scene.gaussians
-    means = centres + (g.means.astype(np.float64) - centres) * factor[:, None]
-    moved = Gaussians(means, g.scales * factor[:, None].astype(np.float32), g.quats,
-                      g.opacities, g.sh, g.extra)
+    means, sizes = g.means.copy(), g.scales.copy()
+    for view, members in enumerate(view_members(scene)):    # view by view: no (N, 3) float64
+        factor = 1.0 / float(scales[view])
+        if factor == 1.0 or members.size == 0:
+            continue
+        centre = scene.cameras[view].position
+        means[members] = centre + (g.means[members].astype(np.float64) - centre) * factor
+        sizes[members] *= np.float32(factor)
+    moved = Gaussians(means, sizes, g.quats, g.opacities, g.sh, g.extra)
     return Scene(moved, scene.view_id, scene.pixel_id, scene.cameras, scene.images,
                  scene.render_settings)

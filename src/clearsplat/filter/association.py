@@ -14,7 +14,8 @@ from ..scene import Scene
 from .masks import dilate
 
 
-__all__ = ["ViewIndex", "RegionMap", "region_gaussians", "removable", "prune_views"]
+__all__ = ["ViewIndex", "RegionMap", "view_members", "region_gaussians", "removable",
+           "prune_views"]
 
 
 class ViewIndex:
@@ -23,12 +24,7 @@ class ViewIndex:
     def __init__(self, scene: Scene):
         # Indices and pixel ids are held as int32 where they fit (half the memory of int64 at
         # millions of Gaussians); what the methods return is int64.
-        small = len(scene) < 2**31
-        order = np.argsort(scene.view_id, kind="stable")
-        if small:
-            order = order.astype(np.int32)
-        bounds = np.searchsorted(scene.view_id[order], np.arange(scene.num_views + 1))
-        self.members = [order[bounds[i]:bounds[i + 1]] for i in range(scene.num_views)]
+        self.members = view_members(scene, narrow=True)
         self.pixels = [_narrow(scene.pixel_id[m], cam.width * cam.height)
                        for m, cam in zip(self.members, scene.cameras)]
         # Pixel -> Gaussians of each view as CSR (pixel-aligned Gaussians only): a region's
@@ -67,8 +63,18 @@ class ViewIndex:
         return out
 
 
+def view_members(scene: Scene, *, narrow: bool = False) -> list[np.ndarray]:
+    """Per view, the indices of its Gaussians in ascending order: (M_i,) int64, or int32 with
+    ``narrow`` where the scene's size fits."""
+    order = np.argsort(scene.view_id, kind="stable")
+    if narrow:
+        order = _narrow(order, len(scene))
+    bounds = np.searchsorted(scene.view_id[order], np.arange(scene.num_views + 1))
+    return [order[bounds[i]:bounds[i + 1]] for i in range(scene.num_views)]
+
+
 def _narrow(values: np.ndarray, bound: int) -> np.ndarray:
-    """``values`` as int32 where every value lies in [-1, ``bound``] and that fits, else as
+    """``values`` (known to lie in [-1, ``bound``]) as int32 where ``bound`` fits, else as
     they are."""
     return values.astype(np.int32) if bound < 2**31 - 1 else values
 

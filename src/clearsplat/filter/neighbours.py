@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene import Scene
+from .association import view_members
 
 __all__ = ["covisibility", "ViewPlan", "view_plan"]
 
@@ -36,12 +37,9 @@ def covisibility(scene: Scene, *, samples: int = _SAMPLES) -> np.ndarray:
     ``samples``, evenly spaced in index order) whose centres camera j sees in front of it and
     inside its image (``C[v, v]`` included)."""
     v_count = scene.num_views
-    order = np.argsort(scene.view_id, kind="stable")
-    bounds = np.searchsorted(scene.view_id[order], np.arange(v_count + 1))
     out = np.zeros((v_count, v_count))
     means = scene.gaussians.means
-    for v in range(v_count):
-        members = order[bounds[v]:bounds[v + 1]]
+    for v, members in enumerate(view_members(scene)):
         if members.size == 0:
             continue
         pick = members[np.linspace(0, members.size - 1, min(samples, members.size)).astype(int)]
