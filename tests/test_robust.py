@@ -376,9 +376,9 @@ def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     removed, the second run's removals and candidates mapped back to the whole scene."""
     scene, _ = soft_scene
     ex = get_extractor("local")
-    # Without min_relative_score the first round leaves something for the second on this
-    # small scene.
-    one = FilterConfig(rounds=1, min_relative_score=0.0)
+    # Without min_relative_score and color_explained the first round leaves something for the
+    # second on this small scene.
+    one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None)
     first = filter_distractors(scene, config=one, extractor=ex)
     kept = np.flatnonzero(first.keep)
     second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
@@ -480,7 +480,8 @@ def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene):
     again): the same as running the filter afresh on what the rounds before kept."""
     scene, _ = soft_scene
     ex = get_extractor("local")
-    one = FilterConfig(rounds=1, min_relative_score=0.0)    # three rounds find something
+    # Three rounds find something on this small scene without these two.
+    one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None)
     kept = np.arange(len(scene))
     runs = 0
     for _ in range(3):

@@ -50,6 +50,7 @@ ABLATIONS = {
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
     "every-view": "default+neighbours=null+verify_views=centres",
+    "no-color-explained": "default+color_explained=null",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",

@@ -288,6 +288,18 @@ class FilterConfig:
         it (pixels that neither render explains, where that view's own distractor or a
         misplaced surface stands). The score condition (``min_score``) stays pooled over the
         views, as in the paper.
+    color_explained : float or None
+        Reject a candidate whose removal would take away only what the other views already
+        show where its view shows it, within that view's misregistration: static content out
+        of register (a pose or depth-scale error), not a transient. Per Gaussian, the colour
+        distance is the L1 distance of its view's input colour to the range of the static
+        reference's colours within the ``refine_tolerance`` radius
+        (:func:`clearsplat.filter.refine.color_distances`); a candidate that passed its
+        individual test is explained when the median over its expanded Gaussians [hat C_k] is
+        at most this quantile of the same distance over its view's Gaussians outside every
+        proposal region (how closely the other views reproduce that view's static content).
+        Applies with ``refine="static-depth"`` (whose reference it reads) and ``verify``, and
+        is ignored otherwise. Default 0.9; None: the paper (every candidate that passes is removed).
     refine_passes : int
         How often ``refine="static-depth"`` builds its static reference. The first pass renders
         each view without every proposed Gaussian of the others; a proposal region covers whole
@@ -388,6 +400,7 @@ class FilterConfig:
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
     relative_score_pool: Literal["sum", "median"] = "sum"
+    color_explained: float | None = 0.9
     refine_passes: int = 2
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
@@ -502,6 +515,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
     "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
+    "color_explained": _unit(optional=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
@@ -524,6 +538,7 @@ PRESETS = {
                           align_depths=False,
                           verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                           min_relative_score=0.0, relative_score_pool="sum",
+                          color_explained=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres"),
@@ -534,6 +549,7 @@ PRESETS = {
                                 align_depths=False,
                                 verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                                 min_relative_score=0.0, relative_score_pool="sum",
+                                color_explained=None,
                                 refine_passes=1, expand_connected=False,
                                 refine_tolerance_depth=True, depth_scale_reach=0, rounds=1,
                                 refine_color_grow=None, neighbours=None,

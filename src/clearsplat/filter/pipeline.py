@@ -33,7 +33,7 @@ from .config import FilterConfig
 from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
-from .refine import refine
+from .refine import explained_candidates, refine
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
@@ -173,16 +173,30 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     # hat C_k: of those that passed, and what accepting each of the others would remove
     # (clearsplat edit); only the accepted ones are removed.
     expand(state, candidates, proposals, region_map, refinement)
-    state.lap("expand")
     if config.verify:
+        if refinement.color_distance is not None:   # ``color_explained``: out of register
+            passed = _unexplained(state, passed, raw, refinement)
+        state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
         state.lap("second_range")
     else:
+        state.lap("expand")
         for c in candidates:
             c.accepted, c.reason = True, "accepted without verification"
     keep = keep_mask(candidates, len(scene))
     state.clock.end_stage()
     return _finish(state, keep, candidates, proposals, renders, touched, hold)
+
+
+def _unexplained(state, candidates: list, raw: list, refinement) -> list:
+    """``candidates`` less those whose expansion the other views explain
+    (``color_explained``), which are rejected."""
+    explained = explained_candidates(candidates, raw, refinement.color_distance,
+                                     state.scene.view_id, state.config.color_explained)
+    for c in explained:
+        c.reason = "explained by the other views: static content out of register"
+    out = {c.index for c in explained}
+    return [c for c in candidates if c.index not in out]
 
 
 def keep_mask(candidates: list, n: int) -> np.ndarray:

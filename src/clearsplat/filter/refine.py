@@ -21,7 +21,8 @@ from .masks import label8, touched_components
 from .robust import misregistration, tolerant_reference
 
 __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "join_touching",
-           "member_depths", "member_pixels", "pixels_of"]
+           "member_depths", "member_pixels", "pixels_of", "box_distance", "color_distances",
+           "explained_candidates"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -116,13 +117,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)
             differ = np.zeros(members.size, dtype=bool)
-            with np.errstate(invalid="ignore"):
-                if reference_rgbs_hi is None:
-                    diff = np.abs(image[pix[valid]] - ref[pix[valid]]).sum(-1)
-                else:
-                    x = image[pix[valid]]
-                    hi = reference_rgbs_hi[view].reshape(-1, 3)[pix[valid]]
-                    diff = (np.maximum(ref[pix[valid]] - x, 0) + np.maximum(x - hi, 0)).sum(-1)
+            hi = None if reference_rgbs_hi is None else reference_rgbs_hi[view].reshape(-1, 3)
+            diff = box_distance(image, ref, hi, pix[valid])
             differ[valid] = diff > color_threshold       # False where the reference is NaN
             touching = (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
             front |= differ & touching
@@ -140,6 +136,88 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     for members, front in zip(index.members, fronts):
         if front is not None:
             out[members] = front
+    return out
+
+
+def box_distance(image: np.ndarray, lo: np.ndarray, hi: np.ndarray | None,
+                 pixels: np.ndarray) -> np.ndarray:
+    """L1 distance over RGB of ``image``'s colours at ``pixels`` to the box [lo, hi], (M,) float.
+
+    ``image``, ``lo``, ``hi``: (H*W, 3); ``hi`` None: the box is the single colour ``lo``
+    (plain L1 difference). NaN where the box is NaN (no reference colour there)."""
+    x = image[pixels]
+    low = lo[pixels]
+    with np.errstate(invalid="ignore"):
+        if hi is None:
+            return np.abs(x - low).sum(-1)
+        return (np.maximum(low - x, 0) + np.maximum(x - hi[pixels], 0)).sum(-1)
+
+
+def color_distances(scene: Scene, index: ViewIndex, reference_rgbs: list,
+                    reference_rgbs_hi: list | None, images: list, pixels: list) -> np.ndarray:
+    """Per Gaussian, the distance of its view's input colour to the reference colours at its
+    pixel, (N,) float32 (:func:`box_distance`): the colour half of :func:`revealing_gaussians`
+    on its own. NaN where the Gaussian has no pixel or the reference no colour.
+
+    ``reference_rgbs`` (and ``reference_rgbs_hi``): per view, (H, W, 3), as in
+    :func:`revealing_gaussians`; ``pixels``: per view, :func:`member_pixels` (None for a view
+    without Gaussians)."""
+    out = np.full(len(scene), np.nan, dtype=np.float32)
+    for view, members in enumerate(index.members):
+        if members.size == 0:
+            continue
+        pix = pixels[view]
+        valid = pix >= 0
+        hi = None if reference_rgbs_hi is None else reference_rgbs_hi[view].reshape(-1, 3)
+        d = np.full(members.size, np.nan, dtype=np.float32)
+        d[valid] = box_distance(np.asarray(images[view]).reshape(-1, 3),
+                                reference_rgbs[view].reshape(-1, 3), hi, pix[valid])
+        out[members] = d
+    return out
+
+
+def explained_candidates(candidates: list, raw: list, distances: np.ndarray, view_id,
+                         quantile: float) -> list:
+    """The candidates whose removal would take away only what the other views already show:
+    static content out of register (``FilterConfig.color_explained``).
+
+    Parameters
+    ----------
+    candidates : list of Candidate
+        After expansion: each is judged on its ``expanded`` Gaussians [hat C_k], what accepting
+        it removes (its refined ``gaussians`` where it has no expansion).
+    raw : list of (M_k,) int
+        Every candidate's Gaussians before refinement (what the proposals cover).
+    distances : (N,) float
+        :func:`color_distances`.
+    view_id : (N,) int
+        The view of each Gaussian.
+    quantile : float
+        A candidate is explained when the median distance over its Gaussians (those with a
+        reference colour) is at most this quantile of the distances of its view's Gaussians
+        outside every proposal region.
+
+    Returns
+    -------
+    list of Candidate
+        The explained ones, in order.
+    """
+    proposed = np.zeros(distances.shape, dtype=bool)
+    for g in raw:
+        proposed[g] = True
+    static = ~proposed & np.isfinite(distances)
+    bound = {}
+    out = []
+    for c in candidates:
+        d = distances[c.gaussians if c.expanded is None else c.expanded]
+        d = d[np.isfinite(d)]
+        if d.size == 0:
+            continue
+        if c.view not in bound:
+            ref = distances[static & (view_id == c.view)]
+            bound[c.view] = float(np.quantile(ref, quantile)) if ref.size else -np.inf
+        if float(np.median(d)) <= bound[c.view]:
+            out.append(c)
     return out
 
 
@@ -190,10 +268,14 @@ class Refinement:
     front_pixels : list of (H, W) bool, or None
         Per view, the pixels holding one of its ``revealing`` Gaussians (where verification
         or ``expand_connected`` needs them; None otherwise).
+    color_distance : (N,) float32 or None
+        Per Gaussian, :func:`color_distances` to the last static reference (with
+        ``color_explained``; None otherwise).
     """
 
     revealing: np.ndarray | None
     front_pixels: list | None = None
+    color_distance: np.ndarray | None = None
 
 
 def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
@@ -221,25 +303,27 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
         Every candidate's Gaussians C_k before refinement (the proposed Gaussians).
     """
     config = state.config
-    revealing = _revealing(state, renders.excl, images, raw)
+    revealing, distances = _revealing(state, renders.excl, images, raw)
     front = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
-    return Refinement(revealing, front)
+    return Refinement(revealing, front, distances)
 
 
-def _revealing(state, excl: list, images: list, raw: list) -> np.ndarray | None:
-    """(N,) bool: the Gaussians in front of the reference of ``config.refine``."""
+def _revealing(state, excl: list, images: list, raw: list) -> tuple:
+    """(N,) bool: the Gaussians in front of the reference of ``config.refine``; and with
+    ``color_explained``, each Gaussian's colour distance to the last static reference (else
+    None)."""
     config = state.config
     if config.refine == "depth":
         return revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
                                    margin=config.refine_margin,
                                    align_scale=config.depth_scale_align,
                                    scale_reach=config.depth_scale_reach,
-                                   workers=config.num_threads)
+                                   workers=config.num_threads), None
     if config.refine != "static-depth":
-        return None
+        return None, None
     proposed = np.zeros(state.n, dtype=bool)
     for g in raw:
         proposed[g] = True
@@ -247,16 +331,21 @@ def _revealing(state, excl: list, images: list, raw: list) -> np.ndarray | None:
     if radii == "auto":   # each view's measured misregistration with the others
         radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
                  for i in range(state.num_views)]
-    revealing = None
+    revealing = reference = None
     members = member_depths(state.scene, state.index)     # the same in every pass
     for _ in range(config.refine_passes):
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
         depths, rgbs = static_reference(state, excl, proposed)
-        revealing = _in_front(state, depths, rgbs, images, radii, members)
+        reference = _tolerant(state, depths, rgbs, radii)
+        revealing = _in_front(state, reference, images, members)
         proposed &= revealing
-    return revealing
+    distances = None
+    if config.color_explained is not None:
+        _, lo, hi = reference
+        distances = color_distances(state.scene, state.index, lo, hi, images, members[1])
+    return revealing, distances
 
 
 def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, list]:
@@ -283,22 +372,25 @@ def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, lis
     return reference, reference_rgb
 
 
-def _in_front(state, reference: list, reference_rgb: list, images: list, radii,
-              members: tuple) -> np.ndarray:
-    """:func:`revealing_gaussians` against the static reference, widened by ``radii``
-    (``refine_tolerance``) where set."""
+def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
+    """The static reference as the tests read it: ``(depths, rgb_lo, rgb_hi)``, widened by
+    ``radii`` (``refine_tolerance``) where set; ``rgb_hi`` None where nothing is widened."""
+    if radii == 0:
+        return reference, reference_rgb, None
+    nearest, lo, hi = tolerant_reference(reference, reference_rgb, radii)
+    return (nearest if state.config.refine_tolerance_depth else reference), lo, hi
+
+
+def _in_front(state, reference: tuple, images: list, members: tuple) -> np.ndarray:
+    """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
+    (:func:`_tolerant`)."""
     config = state.config
-    reference_hi = None
-    if radii != 0:
-        nearest, reference_rgb, reference_hi = tolerant_reference(reference, reference_rgb,
-                                                                  radii)
-        if config.refine_tolerance_depth:
-            reference = nearest
-    return revealing_gaussians(state.scene, state.index, reference, margin=config.refine_margin,
-                               reference_rgbs=reference_rgb,
+    depths, rgb_lo, rgb_hi = reference
+    return revealing_gaussians(state.scene, state.index, depths, margin=config.refine_margin,
+                               reference_rgbs=rgb_lo,
                                color_threshold=config.refine_color, images=images,
                                align_scale=config.depth_scale_align,
-                               reference_rgbs_hi=reference_hi,
+                               reference_rgbs_hi=rgb_hi,
                                scale_reach=config.depth_scale_reach,
                                color_grow=config.refine_color_grow,
                                workers=config.num_threads, members=members)

@@ -1,0 +1,202 @@
+"""Candidates the other views explain (``FilterConfig.color_explained``): the colour distances
+and the per-candidate test."""
+
+import numpy as np
+import pytest
+
+from clearsplat import Camera, Gaussians, Scene
+from clearsplat.filter import FilterConfig
+from clearsplat.filter.association import ViewIndex
+from clearsplat.filter.refine import (box_distance, color_distances, explained_candidates,
+                                      member_pixels)
+from clearsplat.filter.result import Candidate
+
+
+def _slow_box_distance(image, lo, hi, pixels):
+    out = []
+    for p in pixels:
+        d = 0.0
+        for ch in range(3):
+            x, a = float(image[p, ch]), float(lo[p, ch])
+            b = a if hi is None else float(hi[p, ch])
+            if np.isnan(a) or np.isnan(b):
+                d = np.nan
+                break
+            d += max(a - x, 0.0) + max(x - b, 0.0) if hi is not None else abs(x - a)
+        out.append(d)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_box_distance_matches_the_per_pixel_definition(seed):
+    rng = np.random.default_rng(seed)
+    n = 200
+    image = rng.uniform(0, 1, (n, 3)).astype(np.float32)
+    a, b = rng.uniform(0, 1, (2, n, 3)).astype(np.float32)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    lo[rng.uniform(size=n) < 0.1] = np.nan
+    pixels = rng.integers(0, n, 150)
+    for box_hi in (hi, None):
+        got = box_distance(image, lo, box_hi, pixels)
+        want = _slow_box_distance(image, lo, box_hi, pixels)
+        assert np.array_equal(np.isnan(got), np.isnan(want))
+        ok = ~np.isnan(want)
+        np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6, atol=1e-7)
+
+
+def test_box_distance_closed_forms():
+    image = np.array([[0.5, 0.5, 0.5], [0.0, 1.0, 0.2]], np.float32)
+    lo = np.array([[0.4, 0.4, 0.4], [0.1, 0.5, 0.2]], np.float32)
+    hi = np.array([[0.6, 0.6, 0.6], [0.3, 0.9, 0.2]], np.float32)
+    # Inside the box: 0. Outside: the L1 distance to its nearest face per channel.
+    np.testing.assert_allclose(box_distance(image, lo, hi, np.array([0, 1])), [0.0, 0.2],
+                               atol=1e-7)
+    # Without an upper bound the box is the colour ``lo``: the plain L1 difference.
+    np.testing.assert_allclose(box_distance(image, lo, None, np.array([0, 1])), [0.3, 0.6],
+                               atol=1e-6)
+
+
+def _scene(num_views=2, h=6, w=8, loose=()):
+    """One Gaussian per pixel and view; the views in ``loose`` without pixel ids."""
+    K = np.array([[10.0, 0, w / 2], [0, 10.0, h / 2], [0, 0, 1]])
+    cams, view_id, pixel_id = [], [], []
+    for v in range(num_views):
+        c2w = np.eye(4)
+        c2w[0, 3] = 0.1 * v
+        cams.append(Camera(K=K, camera_to_world=c2w, width=w, height=h))
+        view_id.append(np.full(h * w, v))
+        pixel_id.append(np.full(h * w, -1) if v in loose else np.arange(h * w))
+    n = num_views * h * w
+    rng = np.random.default_rng(3)
+    means = np.concatenate([rng.uniform(-0.2, 0.2, (h * w, 3)) + [0, 0, 3] for _ in cams])
+    g = Gaussians(means, np.full((n, 3), 0.02), np.tile([1.0, 0, 0, 0], (n, 1)),
+                  np.full(n, 0.9), rng.uniform(0, 1, (n, 1, 3)))
+    images = [rng.uniform(0, 1, (h, w, 3)).astype(np.float32) for _ in cams]
+    return Scene(g, np.concatenate(view_id), np.concatenate(pixel_id), cams, images=images)
+
+
+def test_color_distances_read_each_gaussians_own_pixel():
+    scene = _scene(num_views=3)
+    index = ViewIndex(scene)
+    rng = np.random.default_rng(4)
+    lo = [rng.uniform(0, 0.5, (6, 8, 3)).astype(np.float32) for _ in range(3)]
+    hi = [a + 0.3 for a in lo]
+    lo[1][2, 3] = np.nan                       # no reference colour at one pixel
+    pixels = [member_pixels(scene, index, v) for v in range(3)]
+    got = color_distances(scene, index, lo, hi, scene.images, pixels)
+    assert got.shape == (len(scene),) and got.dtype == np.float32
+    for g in range(len(scene)):
+        v, p = scene.view_id[g], scene.pixel_id[g]
+        want = _slow_box_distance(scene.images[v].reshape(-1, 3), lo[v].reshape(-1, 3),
+                                  hi[v].reshape(-1, 3), [p])[0]
+        if np.isnan(want):
+            assert np.isnan(got[g])
+        else:
+            assert got[g] == pytest.approx(want, rel=1e-5, abs=1e-6)
+    assert np.isnan(got[(scene.view_id == 1) & (scene.pixel_id == 2 * 8 + 3)]).all()
+
+
+def test_color_distances_without_a_pixel_are_nan():
+    # Loose Gaussians take the pixel their centre projects to; one behind the camera has none.
+    scene = _scene(num_views=2, loose=(1,))
+    scene.gaussians.means[scene.view_id == 1] = [0.0, 0.0, -1.0]
+    index = ViewIndex(scene)
+    lo = [np.zeros((6, 8, 3), np.float32)] * 2
+    pixels = [member_pixels(scene, index, v) for v in range(2)]
+    got = color_distances(scene, index, lo, None, scene.images, pixels)
+    assert np.isnan(got[scene.view_id == 1]).all()
+    assert np.isfinite(got[scene.view_id == 0]).all()
+
+
+def _candidate(index, view, gaussians):
+    return Candidate(index, view, 1, np.zeros((2, 2), bool), np.asarray(gaussians, np.int64))
+
+
+def test_explained_candidates_compare_with_the_views_unproposed_gaussians():
+    view_id = np.repeat([0, 1], 100)
+    d = np.empty(200)
+    d[:100] = np.linspace(0.0, 0.99, 100)    # view 0: static distances 0 .. 0.99
+    d[100:] = np.linspace(0.0, 0.099, 100)   # view 1: a view the others reproduce closely
+    a = _candidate(0, 0, [0, 1, 2])          # view 0, distances 0.00-0.02: explained
+    b = _candidate(1, 0, [97, 98, 99])       # view 0, 0.97-0.99: above its 0.9 quantile
+    c = _candidate(2, 1, [150, 151])         # view 1, ~0.05: below 0.9 quantile of view 1
+    raw = [np.array([0, 1, 2]), np.array([97, 98, 99]), np.array([150, 151])]
+    got = explained_candidates([a, b, c], raw, d, view_id, 0.9)
+    assert got == [a, c]
+    # The quantile is over the view's Gaussians outside every proposal: proposing half of
+    # view 1's low distances raises its bound, and the candidate there stays explained.
+    raw2 = raw + [np.arange(100, 150)]
+    assert explained_candidates([c], raw2, d, view_id, 0.9) == [c]
+    # A stricter quantile explains fewer.
+    assert explained_candidates([a, b, c], raw, d, view_id, 0.01) == [a]
+
+
+def test_a_candidate_is_judged_on_what_it_removes():
+    # Its refined Gaussians look like the view's static content, but its expansion reaches
+    # Gaussians the other views do not show: what accepting it would remove is not explained.
+    view_id = np.zeros(100, int)
+    d = np.linspace(0.0, 0.99, 100)
+    c = _candidate(0, 0, [0, 1, 2])
+    assert explained_candidates([c], [np.arange(3)], d, view_id, 0.9) == [c]
+    c.expanded = np.array([0, 1, 2, 95, 96, 97, 98, 99])
+    assert explained_candidates([c], [np.arange(3)], d, view_id, 0.9) == []
+
+
+def test_candidates_without_a_reference_colour_are_never_explained():
+    view_id = np.zeros(10, int)
+    d = np.full(10, np.nan)
+    d[5:] = 0.0
+    a = _candidate(0, 0, [0, 1])             # no finite distance: cannot be judged
+    assert explained_candidates([a], [np.array([0, 1])], d, view_id, 1.0) == []
+    empty = _candidate(1, 0, [])
+    assert explained_candidates([empty], [np.array([], int)], d, view_id, 1.0) == []
+
+
+@pytest.mark.parametrize("preset", ["paper", "paper-local"])
+def test_paper_presets_verify_every_candidate(preset):
+    assert FilterConfig.preset(preset).color_explained is None
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, "high"])
+def test_color_explained_takes_a_quantile(bad):
+    from clearsplat.errors import ClearsplatError
+    with pytest.raises(ClearsplatError, match="color_explained"):
+        FilterConfig(color_explained=bad)
+
+
+def test_explained_candidates_are_rejected():
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    from clearsplat.synth import make_world
+    from clearsplat.synth.realism import realistic_reconstruction
+
+    world = make_world("object", num_views=4, seed=1, height=96, width=160)
+    scene, _ = realistic_reconstruction(world, "pose", seed=1)
+    extractor = get_extractor("local")
+    off = filter_distractors(scene, config=FilterConfig(color_explained=None),
+                             extractor=extractor)
+    on = filter_distractors(scene, config=FilterConfig(color_explained=0.9),
+                            extractor=extractor)
+    explained = [c for c in on.candidates if c.reason.startswith("explained")]
+    assert explained                        # the estimated poses leave such candidates
+    by_index = {c.index: c for c in off.candidates}
+    for c in explained:
+        # Each passed its individual test and would have been removed: only its expansion's
+        # colours, which the other views show, reject it.
+        assert not c.accepted and c.scores["individual"] > 0
+        assert by_index[c.index].reason != "rejected by individual test"
+    # The same candidates are proposed, refined and expanded either way.
+    assert [c.gaussians.tolist() for c in on.candidates] == \
+        [c.gaussians.tolist() for c in off.candidates]
+    assert [c.expanded.tolist() for c in on.candidates] == \
+        [c.expanded.tolist() for c in off.candidates]
+    assert not any(c.reason.startswith("explained") for c in off.candidates)
+    removed = np.flatnonzero(~on.keep)
+    for c in explained:                     # an explained candidate's own Gaussians stay
+        only = np.setdiff1d(c.expanded, np.concatenate(
+            [x.expanded for x in on.candidates if x.accepted] or [np.array([], int)]))
+        assert not np.isin(only, removed).any()
+    # With refine other than "static-depth" there is no static reference: nothing is explained.
+    depth = filter_distractors(scene, config=FilterConfig(color_explained=0.9, refine="depth"),
+                               extractor=extractor)
+    assert not any(c.reason.startswith("explained") for c in depth.candidates)
