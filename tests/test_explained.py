@@ -83,7 +83,7 @@ def test_color_distances_read_each_gaussians_own_pixel():
     hi = [a + 0.3 for a in lo]
     lo[1][2, 3] = np.nan                       # no reference colour at one pixel
     pixels = [member_pixels(scene, index, v) for v in range(3)]
-    got = color_distances(scene, index, lo, hi, scene.images, pixels)
+    got = color_distances(scene, index, lo, scene.images, pixels, reference_rgbs_hi=hi)
     assert got.shape == (len(scene),) and got.dtype == np.float32
     for g in range(len(scene)):
         v, p = scene.view_id[g], scene.pixel_id[g]
@@ -103,9 +103,13 @@ def test_color_distances_without_a_pixel_are_nan():
     index = ViewIndex(scene)
     lo = [np.zeros((6, 8, 3), np.float32)] * 2
     pixels = [member_pixels(scene, index, v) for v in range(2)]
-    got = color_distances(scene, index, lo, None, scene.images, pixels)
+    got = color_distances(scene, index, lo, scene.images, pixels)
     assert np.isnan(got[scene.view_id == 1]).all()
     assert np.isfinite(got[scene.view_id == 0]).all()
+
+
+def _members(view_id):
+    return [np.flatnonzero(view_id == v) for v in range(int(view_id.max()) + 1)]
 
 
 def _candidate(index, view, gaussians):
@@ -121,14 +125,18 @@ def test_explained_candidates_compare_with_the_views_unproposed_gaussians():
     b = _candidate(1, 0, [97, 98, 99])       # view 0, 0.97-0.99: above its 0.9 quantile
     c = _candidate(2, 1, [150, 151])         # view 1, ~0.05: below 0.9 quantile of view 1
     raw = [np.array([0, 1, 2]), np.array([97, 98, 99]), np.array([150, 151])]
-    got = explained_candidates([a, b, c], raw, d, view_id, 0.9)
+    got = explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.9)
     assert got == [a, c]
-    # The quantile is over the view's Gaussians outside every proposal: proposing half of
-    # view 1's low distances raises its bound, and the candidate there stays explained.
-    raw2 = raw + [np.arange(100, 150)]
-    assert explained_candidates([c], raw2, d, view_id, 0.9) == [c]
+    # The quantile is over the view's Gaussians outside every proposal: with its 60 lowest
+    # distances proposed, view 1's 0.5 quantile rises from 0.0495 to 0.079 and the candidate
+    # there (0.0505) is explained; counted with them it would not be.
+    assert explained_candidates([c], raw, d, _members(view_id), quantile=0.5) == []
+    raw2 = raw + [np.arange(100, 160)]
+    assert explained_candidates([c], raw2, d, _members(view_id), quantile=0.5) == [c]
+    assert c.scores["color"] == pytest.approx(0.0505)
+    assert c.scores["color_bound"] == pytest.approx(np.quantile(d[160:200], 0.5))
     # A stricter quantile explains fewer.
-    assert explained_candidates([a, b, c], raw, d, view_id, 0.01) == [a]
+    assert explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.01) == [a]
 
 
 def test_a_candidate_is_judged_on_what_it_removes():
@@ -137,9 +145,31 @@ def test_a_candidate_is_judged_on_what_it_removes():
     view_id = np.zeros(100, int)
     d = np.linspace(0.0, 0.99, 100)
     c = _candidate(0, 0, [0, 1, 2])
-    assert explained_candidates([c], [np.arange(3)], d, view_id, 0.9) == [c]
+    assert explained_candidates([c], [np.arange(3)], d, _members(view_id), quantile=0.9) == [c]
     c.expanded = np.array([0, 1, 2, 95, 96, 97, 98, 99])
-    assert explained_candidates([c], [np.arange(3)], d, view_id, 0.9) == []
+    assert explained_candidates([c], [np.arange(3)], d, _members(view_id), quantile=0.9) == []
+
+
+def test_the_bound_ignores_static_gaussians_without_a_reference_colour():
+    view_id = np.zeros(100, int)
+    d = np.linspace(0.0, 0.99, 100)
+    d[50:] = np.nan                            # half the view has no reference colour
+    c = _candidate(0, 0, [10, 11, 12])         # 0.10-0.12: above the 0.2 quantile of 0-0.49
+    assert explained_candidates([c], [np.arange(10, 13)], d, _members(view_id),
+                                quantile=0.2) == []
+    static = np.r_[d[:10], d[13:50]]          # unproposed, with a reference colour
+    assert c.scores["color_bound"] == pytest.approx(np.quantile(static, 0.2))
+
+
+def test_a_view_without_static_reference_colours_explains_nothing():
+    view_id = np.repeat([0, 1], 10)
+    d = np.zeros(20)
+    d[10:] = np.nan                            # view 1: no reference colour anywhere...
+    d[[15, 16]] = 0.0                          # ...but at its candidate's own Gaussians
+    c = _candidate(0, 1, [15, 16])
+    assert explained_candidates([c], [np.array([15, 16])], d, _members(view_id),
+                                quantile=1.0) == []
+    assert "color_bound" not in c.scores
 
 
 def test_candidates_without_a_reference_colour_are_never_explained():
@@ -147,9 +177,11 @@ def test_candidates_without_a_reference_colour_are_never_explained():
     d = np.full(10, np.nan)
     d[5:] = 0.0
     a = _candidate(0, 0, [0, 1])             # no finite distance: cannot be judged
-    assert explained_candidates([a], [np.array([0, 1])], d, view_id, 1.0) == []
+    assert explained_candidates([a], [np.array([0, 1])], d, _members(view_id),
+                                quantile=1.0) == []
     empty = _candidate(1, 0, [])
-    assert explained_candidates([empty], [np.array([], int)], d, view_id, 1.0) == []
+    assert explained_candidates([empty], [np.array([], int)], d, _members(view_id),
+                                quantile=1.0) == []
 
 
 @pytest.mark.parametrize("preset", ["paper", "paper-local"])
@@ -181,10 +213,15 @@ def test_explained_candidates_are_rejected():
     assert explained                        # the estimated poses leave such candidates
     by_index = {c.index: c for c in off.candidates}
     for c in explained:
-        # Each passed its individual test and would have been removed: only its expansion's
+        # Each passed its individual test, as without the option: only its expansion's
         # colours, which the other views show, reject it.
         assert not c.accepted and c.scores["individual"] > 0
+        assert c.scores["individual"] == by_index[c.index].scores["individual"]
         assert by_index[c.index].reason != "rejected by individual test"
+        assert c.scores["color"] <= c.scores["color_bound"]
+    for c in on.candidates:
+        if c.accepted:
+            assert c.scores["color"] > c.scores["color_bound"]
     # The same candidates are proposed, refined and expanded either way.
     assert [c.gaussians.tolist() for c in on.candidates] == \
         [c.gaussians.tolist() for c in off.candidates]
@@ -200,3 +237,64 @@ def test_explained_candidates_are_rejected():
     depth = filter_distractors(scene, config=FilterConfig(color_explained=0.9, refine="depth"),
                                extractor=extractor)
     assert not any(c.reason.startswith("explained") for c in depth.candidates)
+
+
+def test_without_verification_nothing_is_explained():
+    # The "no verification" ablation removes every proposal, explained or not.
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    from clearsplat.synth import make_world
+    from clearsplat.synth.realism import realistic_reconstruction
+
+    world = make_world("object", num_views=4, seed=1, height=96, width=160)
+    scene, _ = realistic_reconstruction(world, "pose", seed=1)
+    res = filter_distractors(scene, config=FilterConfig(verify=False, color_explained=0.9),
+                             extractor=get_extractor("local"))
+    assert res.candidates and all(c.accepted for c in res.candidates)
+
+
+def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(monkeypatch):
+    import clearsplat.filter.pipeline as pipeline
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    from clearsplat.synth import make_world
+    from clearsplat.synth.realism import realistic_reconstruction
+
+    world = make_world("object", num_views=4, seed=1, height=96, width=160)
+    scene, _ = realistic_reconstruction(world, "pose", seed=1)
+    chosen = []
+
+    def every_second_range(candidates, raw, distances, members, *, quantile):
+        out = [c for c in candidates if c.range == 2]
+        chosen.extend(out)
+        return out
+    monkeypatch.setattr(pipeline, "explained_candidates", every_second_range)
+    res = filter_distractors(scene, config=FilterConfig(), extractor=get_extractor("local"))
+    assert chosen                              # some second-range candidates passed
+    for c in chosen:
+        assert not c.accepted and c.reason.startswith("explained")
+        assert "additional" not in c.scores and "joint" not in c.scores
+    assert not any(c.accepted for c in res.candidates if c.range == 2)
+
+
+def test_rounds_with_color_explained_are_runs_on_what_each_kept():
+    """The option acts within each round, on that round's Gaussians."""
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    from clearsplat.synth import make_world
+    from clearsplat.synth.realism import realistic_reconstruction
+
+    world = make_world("street", num_views=8, seed=0, height=64, width=112)
+    scene, _ = realistic_reconstruction(world, "pose", seed=0)
+    ex = get_extractor("local")
+    one = FilterConfig(rounds=1, color_explained=0.9)
+    first = filter_distractors(scene, config=one, extractor=ex)
+    kept = np.flatnonzero(first.keep)
+    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+    both = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
+    expect = first.keep.copy()
+    expect[kept[~second.keep]] = False
+    np.testing.assert_array_equal(both.keep, expect)
+    assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
+    later = both.candidates[len(first.candidates):]
+    assert [c.reason for c in later] == [c.reason for c in second.candidates]

@@ -289,17 +289,20 @@ class FilterConfig:
         misplaced surface stands). The score condition (``min_score``) stays pooled over the
         views, as in the paper.
     color_explained : float or None
-        Reject a candidate whose removal would take away only what the other views already
-        show where its view shows it, within that view's misregistration: static content out
-        of register (a pose or depth-scale error), not a transient. Per Gaussian, the colour
+        Reject a candidate whose removal would take away only what the other views already show
+        where its view shows it, within that view's misregistration: static content out of
+        register (a pose or depth-scale error), not a transient. Per Gaussian, the colour
         distance is the L1 distance of its view's input colour to the range of the static
         reference's colours within the ``refine_tolerance`` radius
         (:func:`clearsplat.filter.refine.color_distances`); a candidate that passed its
-        individual test is explained when the median over its expanded Gaussians [hat C_k] is
-        at most this quantile of the same distance over its view's Gaussians outside every
-        proposal region (how closely the other views reproduce that view's static content).
-        Applies with ``refine="static-depth"`` (whose reference it reads) and ``verify``, and
-        is ignored otherwise. Default 0.9; None: the paper (every candidate that passes is removed).
+        individual test is explained when the median over its expanded Gaussians [hat C_k] is at
+        most this quantile of the same distance over its view's Gaussians outside every proposal
+        region (how closely the other views reproduce that view's static content); both count
+        only the Gaussians where the last refinement pass's static reference has a colour. An
+        explained candidate is rejected; one of the second range then takes no part in the
+        additional and joint tests. Applies with ``refine="static-depth"`` (whose reference it
+        reads) and ``verify``, and is ignored otherwise. Default 0.9; None: the paper (every
+        candidate that passes is removed).
     refine_passes : int
         How often ``refine="static-depth"`` builds its static reference. The first pass renders
         each view without every proposed Gaussian of the others; a proposal region covers whole

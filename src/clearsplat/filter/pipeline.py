@@ -192,7 +192,8 @@ def _unexplained(state, candidates: list, raw: list, refinement) -> list:
     """``candidates`` less those whose expansion the other views explain
     (``color_explained``), which are rejected."""
     explained = explained_candidates(candidates, raw, refinement.color_distance,
-                                     state.scene.view_id, state.config.color_explained)
+                                     state.index.members,
+                                     quantile=state.config.color_explained)
     for c in explained:
         c.reason = "explained by the other views: static content out of register"
     out = {c.index for c in explained}

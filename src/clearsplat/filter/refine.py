@@ -153,15 +153,24 @@ def box_distance(image: np.ndarray, lo: np.ndarray, hi: np.ndarray | None,
         return (np.maximum(low - x, 0) + np.maximum(x - hi[pixels], 0)).sum(-1)
 
 
-def color_distances(scene: Scene, index: ViewIndex, reference_rgbs: list,
-                    reference_rgbs_hi: list | None, images: list, pixels: list) -> np.ndarray:
+def color_distances(scene: Scene, index: ViewIndex, reference_rgbs: list, images: list,
+                    pixels: list, *, reference_rgbs_hi: list | None = None) -> np.ndarray:
     """Per Gaussian, the distance of its view's input colour to the reference colours at its
     pixel, (N,) float32 (:func:`box_distance`): the colour half of :func:`revealing_gaussians`
     on its own. NaN where the Gaussian has no pixel or the reference no colour.
 
-    ``reference_rgbs`` (and ``reference_rgbs_hi``): per view, (H, W, 3), as in
-    :func:`revealing_gaussians`; ``pixels``: per view, :func:`member_pixels` (None for a view
-    without Gaussians)."""
+    Parameters
+    ----------
+    reference_rgbs : list of (H, W, 3) float
+        Per view, the reference colours (the lower bounds with ``reference_rgbs_hi``), as in
+        :func:`revealing_gaussians`.
+    images : list of (H, W, 3) float
+        The input colours.
+    pixels : list of (M_v,) int or None
+        Per view, :func:`member_pixels` (None for a view without Gaussians).
+    reference_rgbs_hi : list of (H, W, 3) float, optional
+        Upper bounds of the reference colours: the distance is then to that box.
+    """
     out = np.full(len(scene), np.nan, dtype=np.float32)
     for view, members in enumerate(index.members):
         if members.size == 0:
@@ -170,16 +179,19 @@ def color_distances(scene: Scene, index: ViewIndex, reference_rgbs: list,
         valid = pix >= 0
         hi = None if reference_rgbs_hi is None else reference_rgbs_hi[view].reshape(-1, 3)
         d = np.full(members.size, np.nan, dtype=np.float32)
-        d[valid] = box_distance(np.asarray(images[view]).reshape(-1, 3),
+        d[valid] = box_distance(images[view].reshape(-1, 3),
                                 reference_rgbs[view].reshape(-1, 3), hi, pix[valid])
         out[members] = d
     return out
 
 
-def explained_candidates(candidates: list, raw: list, distances: np.ndarray, view_id,
-                         quantile: float) -> list:
+def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
+                         members: list, *, quantile: float) -> list:
     """The candidates whose removal would take away only what the other views already show:
     static content out of register (``FilterConfig.color_explained``).
+
+    Each candidate judged gets ``scores["color"]``, the median distance over its Gaussians,
+    and ``scores["color_bound"]``, its view's quantile.
 
     Parameters
     ----------
@@ -190,12 +202,13 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray, vie
         Every candidate's Gaussians before refinement (what the proposals cover).
     distances : (N,) float
         :func:`color_distances`.
-    view_id : (N,) int
-        The view of each Gaussian.
+    members : list of (M_v,) int
+        Per view, the indices of its Gaussians (``ViewIndex.members``).
     quantile : float
-        A candidate is explained when the median distance over its Gaussians (those with a
-        reference colour) is at most this quantile of the distances of its view's Gaussians
-        outside every proposal region.
+        A candidate is explained when the median distance over its Gaussians that have a
+        reference colour is at most this quantile of the distances of its view's Gaussians
+        outside every proposal region (those with a reference colour). A candidate without
+        any such Gaussian, or in a view without any such static Gaussian, is not explained.
 
     Returns
     -------
@@ -214,9 +227,14 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray, vie
         if d.size == 0:
             continue
         if c.view not in bound:
-            ref = distances[static & (view_id == c.view)]
-            bound[c.view] = float(np.quantile(ref, quantile)) if ref.size else -np.inf
-        if float(np.median(d)) <= bound[c.view]:
+            m = members[c.view]
+            ref = distances[m[static[m]]]
+            bound[c.view] = float(np.quantile(ref, quantile)) if ref.size else None
+        if bound[c.view] is None:
+            continue
+        median = float(np.median(d))
+        c.scores["color"], c.scores["color_bound"] = median, bound[c.view]
+        if median <= bound[c.view]:
             out.append(c)
     return out
 
@@ -342,9 +360,10 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
         revealing = _in_front(state, reference, images, members)
         proposed &= revealing
     distances = None
-    if config.color_explained is not None:
+    if config.color_explained is not None and config.verify:
         _, lo, hi = reference
-        distances = color_distances(state.scene, state.index, lo, hi, images, members[1])
+        distances = color_distances(state.scene, state.index, lo, images, members[1],
+                                    reference_rgbs_hi=hi)
     return revealing, distances
 
 

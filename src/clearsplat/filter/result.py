@@ -41,7 +41,9 @@ class Candidate:
     verify_views : list of int
         The verification views [V_i].
     scores : dict of str to float
-        ``"individual"``, ``"additional"`` and ``"joint"`` where run.
+        ``"individual"``, ``"additional"`` and ``"joint"`` where run; ``"color"`` and
+        ``"color_bound"`` where ``color_explained`` judged it (explained when the first is at
+        most the second).
     accepted : bool
     reason : str
         Why it was accepted or rejected.
