@@ -184,8 +184,8 @@ def test_candidates_without_a_reference_colour_are_never_explained():
                                 quantile=1.0) == []
 
 
-@pytest.mark.parametrize("preset", ["paper", "paper-local"])
-def test_paper_presets_verify_every_candidate(preset):
+@pytest.mark.parametrize("preset", ["paper", "paper-local", "default"])
+def test_every_candidate_that_passes_is_removed_by_default(preset):
     assert FilterConfig.preset(preset).color_explained is None
 
 
@@ -269,32 +269,11 @@ def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(m
         chosen.extend(out)
         return out
     monkeypatch.setattr(pipeline, "explained_candidates", every_second_range)
-    res = filter_distractors(scene, config=FilterConfig(), extractor=get_extractor("local"))
+    res = filter_distractors(scene, config=FilterConfig(color_explained=0.9),
+                             extractor=get_extractor("local"))
     assert chosen                              # some second-range candidates passed
     for c in chosen:
         assert not c.accepted and c.reason.startswith("explained")
         assert "additional" not in c.scores and "joint" not in c.scores
     assert not any(c.accepted for c in res.candidates if c.range == 2)
 
-
-def test_rounds_with_color_explained_are_runs_on_what_each_kept():
-    """The option acts within each round, on that round's Gaussians."""
-    from clearsplat.features import get_extractor
-    from clearsplat.filter import filter_distractors
-    from clearsplat.synth import make_world
-    from clearsplat.synth.realism import realistic_reconstruction
-
-    world = make_world("street", num_views=8, seed=0, height=64, width=112)
-    scene, _ = realistic_reconstruction(world, "pose", seed=0)
-    ex = get_extractor("local")
-    one = FilterConfig(rounds=1, color_explained=0.9)
-    first = filter_distractors(scene, config=one, extractor=ex)
-    kept = np.flatnonzero(first.keep)
-    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
-    both = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
-    expect = first.keep.copy()
-    expect[kept[~second.keep]] = False
-    np.testing.assert_array_equal(both.keep, expect)
-    assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
-    later = both.candidates[len(first.candidates):]
-    assert [c.reason for c in later] == [c.reason for c in second.candidates]

@@ -371,6 +371,17 @@ def test_local_depth_scales_follow_a_slow_ramp_and_ignore_a_small_object():
     assert (s3[:10] == 1).all()
 
 
+def _two_runs(scene, one, ex):
+    """The filter ``one`` (one round) run on ``scene``, then on what it kept: ``(first, kept,
+    second, expect)``, ``expect`` the keep mask two rounds must give."""
+    first = filter_distractors(scene, config=one, extractor=ex)
+    kept = np.flatnonzero(first.keep)
+    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+    expect = first.keep.copy()
+    expect[kept[~second.keep]] = False
+    return first, kept, second, expect
+
+
 def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     """``rounds=2`` is the filter run once, then run again on the scene without what it
     removed, the second run's removals and candidates mapped back to the whole scene."""
@@ -379,16 +390,12 @@ def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     # Without min_relative_score and color_explained the first round leaves something for the
     # second on this small scene.
     one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None)
-    first = filter_distractors(scene, config=one, extractor=ex)
-    kept = np.flatnonzero(first.keep)
-    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+    first, kept, second, expect = _two_runs(scene, one, ex)
     assert not second.keep.all(), "the scene should have something for a second round to find"
     stages = []
     res = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex,
                              progress=lambda stage, done, total: stages.append(stage))
     assert "render" in stages and "render (round 2)" in stages
-    expect = first.keep.copy()
-    expect[kept[~second.keep]] = False
     np.testing.assert_array_equal(res.keep, expect)
     assert len(res.candidates) == len(first.candidates) + len(second.candidates)
     assert [c.index for c in res.candidates] == list(range(len(res.candidates)))
@@ -526,13 +533,9 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
     # Without min_relative_score the first round leaves something for the second on this
     # small scene.
     one = FilterConfig(rounds=1, min_relative_score=0.0)
-    first = filter_distractors(scene, config=one, extractor=ex)
-    kept = np.flatnonzero(first.keep)
-    second = filter_distractors(scene.subset(kept), config=one, extractor=ex)
+    first, kept, second, expect = _two_runs(scene, one, ex)
     res = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
     assert res.stats["views_derived"] == scene.num_views
-    expect = first.keep.copy()
-    expect[kept[~second.keep]] = False
     np.testing.assert_array_equal(res.keep, expect)
     later = [c.record() for c in res.candidates if c.round == 2]
     assert len(later) == len(second.candidates) > 0
@@ -611,3 +614,17 @@ def test_colour_hysteresis_joins_the_foot_of_an_object_and_nothing_apart():
     for grow in (0.4, 0.5, 0.7):
         np.testing.assert_array_equal(
             revealing_gaussians(scene, index, ref_depth, color_grow=grow, **kw)[members], top)
+
+
+def test_rounds_with_color_explained_are_runs_on_what_each_kept():
+    """``color_explained`` acts within each round, on that round's Gaussians."""
+    world = make_world("street", num_views=8, seed=0, height=64, width=112)
+    scene, _ = realistic_reconstruction(world, "pose", seed=0)
+    ex = get_extractor("local")
+    one = FilterConfig(rounds=1, color_explained=0.9)
+    first, kept, second, expect = _two_runs(scene, one, ex)
+    both = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
+    np.testing.assert_array_equal(both.keep, expect)
+    assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
+    later = both.candidates[len(first.candidates):]
+    assert [c.reason for c in later] == [c.reason for c in second.candidates]
