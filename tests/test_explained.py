@@ -184,9 +184,10 @@ def test_candidates_without_a_reference_colour_are_never_explained():
                                 quantile=1.0) == []
 
 
-@pytest.mark.parametrize("preset", ["paper", "paper-local", "default"])
-def test_every_candidate_that_passes_is_removed_by_default(preset):
+@pytest.mark.parametrize("preset", ["paper", "paper-local"])
+def test_paper_presets_remove_every_candidate_that_passes(preset):
     assert FilterConfig.preset(preset).color_explained is None
+    assert FilterConfig().color_explained == 0.75
 
 
 @pytest.mark.parametrize("bad", [-0.1, 1.5, "high"])

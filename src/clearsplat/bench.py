@@ -50,6 +50,7 @@ ABLATIONS = {
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
     "every-view": "default+neighbours=null+verify_views=centres",
+    "no-color-explained": "default+color_explained=null",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",
@@ -63,7 +64,6 @@ ABLATIONS = {
     "+median-views": "default+relative_score_pool=median",
     "+support-margin": "default+support_margin=0.0001",
     "+align-depths": "default+align_depths=true",
-    "+color-explained": "default+color_explained=0.75",
 }
 
 

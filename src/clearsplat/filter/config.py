@@ -301,7 +301,7 @@ class FilterConfig:
         only the Gaussians where the last refinement pass's static reference has a colour. An
         explained candidate is rejected; one of the second range then takes no part in the
         additional and joint tests. Applies with ``refine="static-depth"`` (whose reference it
-        reads) and ``verify``, and is ignored otherwise. None (the default): the paper (every
+        reads) and ``verify``, and is ignored otherwise. Default 0.75; None: the paper (every
         candidate that passes is removed).
     refine_passes : int
         How often ``refine="static-depth"`` builds its static reference. The first pass renders
@@ -403,7 +403,7 @@ class FilterConfig:
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
     relative_score_pool: Literal["sum", "median"] = "sum"
-    color_explained: float | None = None
+    color_explained: float | None = 0.75
     refine_passes: int = 2
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
