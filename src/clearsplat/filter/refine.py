@@ -40,8 +40,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         align_scale: bool = False,
                         reference_rgbs_hi: list[np.ndarray] | None = None,
                         scale_reach: int = 0, color_grow: float | None = None,
-                        workers: int | None = None, members: tuple | None = None
-                        ) -> np.ndarray:
+                        workers: int | None = None, members: tuple | None = None,
+                        color_distance: np.ndarray | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -87,6 +87,9 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         result does not depend on it.
     members : (depths, pixels), optional
         :func:`member_depths` of ``scene`` and ``index``, when the caller has them already.
+    color_distance : (N,) float, optional
+        :func:`color_distances` against the same reference colours, when the caller has them
+        already (the colour test then reads them instead of measuring again).
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -117,8 +120,12 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)
             differ = np.zeros(members.size, dtype=bool)
-            hi = None if reference_rgbs_hi is None else reference_rgbs_hi[view].reshape(-1, 3)
-            diff = box_distance(image, ref, hi, pix[valid])
+            if color_distance is not None:
+                diff = color_distance[members][valid]
+            else:
+                hi = (None if reference_rgbs_hi is None
+                      else reference_rgbs_hi[view].reshape(-1, 3))
+                diff = box_distance(image, ref, hi, pix[valid])
             differ[valid] = diff > color_threshold       # False where the reference is NaN
             touching = (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
             front |= differ & touching
@@ -349,21 +356,21 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
     if radii == "auto":   # each view's measured misregistration with the others
         radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
                  for i in range(state.num_views)]
-    revealing = reference = None
+    revealing = distances = None
     members = member_depths(state.scene, state.index)     # the same in every pass
-    for _ in range(config.refine_passes):
+    explain = config.color_explained is not None and config.verify
+    for k in range(config.refine_passes):
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
         depths, rgbs = static_reference(state, excl, proposed)
         reference = _tolerant(state, depths, rgbs, radii)
-        revealing = _in_front(state, reference, images, members)
+        if explain and k == config.refine_passes - 1:   # measured once, read by both tests
+            _, lo, hi = reference
+            distances = color_distances(state.scene, state.index, lo, images, members[1],
+                                        reference_rgbs_hi=hi)
+        revealing = _in_front(state, reference, images, members, distances)
         proposed &= revealing
-    distances = None
-    if config.color_explained is not None and config.verify:
-        _, lo, hi = reference
-        distances = color_distances(state.scene, state.index, lo, images, members[1],
-                                    reference_rgbs_hi=hi)
     return revealing, distances
 
 
@@ -400,7 +407,8 @@ def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
     return (nearest if state.config.refine_tolerance_depth else reference), lo, hi
 
 
-def _in_front(state, reference: tuple, images: list, members: tuple) -> np.ndarray:
+def _in_front(state, reference: tuple, images: list, members: tuple,
+              distances: np.ndarray | None = None) -> np.ndarray:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
     (:func:`_tolerant`)."""
     config = state.config
@@ -412,7 +420,8 @@ def _in_front(state, reference: tuple, images: list, members: tuple) -> np.ndarr
                                reference_rgbs_hi=rgb_hi,
                                scale_reach=config.depth_scale_reach,
                                color_grow=config.refine_color_grow,
-                               workers=config.num_threads, members=members)
+                               workers=config.num_threads, members=members,
+                               color_distance=distances)
 
 
 def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
