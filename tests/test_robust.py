@@ -17,7 +17,7 @@ from clearsplat.synth.realism import realistic_reconstruction
 
 NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
            refine_tolerance=2, min_relative_score=0.3, refine_passes=2, expand_connected=True,
-           refine_tolerance_depth=False, depth_scale_reach=3, rounds=2)
+           refine_tolerance_depth=False, depth_scale_reach=3, rounds=2, edge_tolerance=2)
 
 
 def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
@@ -74,6 +74,104 @@ def test_tolerant_images_and_reference_against_brute_force():
                 c = c[~np.isnan(c).any(1)]
                 np.testing.assert_array_equal(rlo[y, x], c.min(0))
                 np.testing.assert_array_equal(rhi[y, x], c.max(0))
+
+
+def test_tolerant_reference_takes_its_own_depth_radius():
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(1, 2, (8, 10))
+    depth[2:4, 3:5] = 0
+    rgb = rng.uniform(0, 1, (8, 10, 3))
+    for r, rd in ((1, 2), (2, 0), (0, 1)):
+        (d,), (lo,), (hi,) = tolerant_reference([depth], [rgb], r, depth_radius=rd)
+        (d_ref,), _, _ = tolerant_reference([depth], [rgb], rd)
+        _, (lo_ref,), (hi_ref,) = tolerant_reference([depth], [rgb], r)
+        np.testing.assert_array_equal(d, d_ref)
+        np.testing.assert_array_equal(lo, lo_ref)
+        np.testing.assert_array_equal(hi, hi_ref)
+    np.testing.assert_array_equal(tolerant_reference([depth], [rgb], 1, depth_radius=0)[0][0],
+                                  depth)
+    # one radius per view, for depth and colour apart
+    two = tolerant_reference([depth, depth], [rgb, rgb], [0, 2], depth_radius=[1, 0])
+    np.testing.assert_array_equal(two[0][1], depth)
+    np.testing.assert_array_equal(two[0][0], tolerant_reference([depth], [rgb], 1)[0][0])
+    np.testing.assert_array_equal(two[1][1], tolerant_reference([depth], [rgb], 2)[1][0])
+
+
+def test_edge_tolerance_is_the_least_radius_in_colour_and_depth():
+    """``_tolerant``: colour radii at least ``edge_tolerance``; depth radii ``edge_tolerance``
+    alone unless ``refine_tolerance_depth``, then the colour radii; 0 changes nothing."""
+    from types import SimpleNamespace
+
+    from clearsplat.filter.refine import _tolerant
+    rng = np.random.default_rng(6)
+    depths = [rng.uniform(1, 2, (6, 9)) for _ in range(2)]
+    rgbs = [rng.uniform(0, 1, (6, 9, 3)) for _ in range(2)]
+    measured = [0, 3]
+    for edge, tol_depth in ((0, False), (0, True), (2, False), (2, True), (4, False)):
+        state = SimpleNamespace(config=FilterConfig(edge_tolerance=edge,
+                                                    refine_tolerance_depth=tol_depth))
+        d, lo, hi = _tolerant(state, depths, rgbs, measured)
+        colour = [max(r, edge) for r in measured]
+        depth = colour if tol_depth else [edge, edge]
+        for v in range(2):
+            np.testing.assert_array_equal(
+                d[v], tolerant_reference([depths[v]], [rgbs[v]], depth[v])[0][0])
+            ref = tolerant_reference([depths[v]], [rgbs[v]], colour[v])
+            np.testing.assert_array_equal(lo[v], ref[1][0])
+            np.testing.assert_array_equal(hi[v], ref[2][0])
+    state = SimpleNamespace(config=FilterConfig(edge_tolerance=0))
+    assert _tolerant(state, depths, rgbs, 0) == (depths, rgbs, None)
+
+
+def test_edge_tolerance_keeps_a_static_edge_that_another_view_places_a_pixel_away():
+    """Closed form: a near surface (depth 1) covers columns 0-9 of view 0 and only 0-8 of the
+    other views' reference, which shows the far one (depth 2) from column 9 on. Column 9's
+    Gaussians stand in front of the reference at their own pixel, not of the nearest surface
+    it shows within one pixel; every other Gaussian is the same either way."""
+    from clearsplat.synth import reconstruct
+    h, w = 16, 20
+    world = make_world("object", num_views=2, seed=0, height=h, width=w)
+    cols = np.arange(w)[None, :] * np.ones((h, 1))
+    own = np.where(cols < 10, 1.0, 2.0)
+    ref = np.where(cols < 9, 1.0, 2.0)
+    scene = reconstruct(world.cameras[:2], [np.full((h, w, 3), 0.5)] * 2, [own, own],
+                        depth_blur=0.0, depth_noise=0.0)
+    index = ViewIndex(scene)
+    members = index.members[0]
+    col = (scene.pixel_id[members] % w)
+    rgb = np.full((h, w, 3), 0.5)
+    for depth_radius, edge_in_front in ((0, True), (1, False)):
+        near, _, _ = tolerant_reference([ref, ref], [rgb, rgb], 0, depth_radius=depth_radius)
+        front = revealing_gaussians(scene, index, near, margin=0.02)[members]
+        assert front[col == 9].all() == edge_in_front and not front[col != 9].any()
+
+
+def test_depth_scale_is_measured_against_scale_depths():
+    """``scale_depths``: each view's depth scale and spread come from those depths, the test
+    from ``reference_depths``; a slow per-view reference of the same rule."""
+    from clearsplat.filter.refine import _SPREAD_FACTOR, member_depths
+    world = make_world("object", num_views=3, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "depth", seed=0, clean=True)
+    index = ViewIndex(scene)
+    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
+    near, _, _ = tolerant_reference(ref, ref, 0, depth_radius=1)
+    got = revealing_gaussians(scene, index, near, margin=0.02, align_scale=True,
+                              scale_depths=ref)
+    assert not np.array_equal(got, revealing_gaussians(scene, index, near, margin=0.02,
+                                                       align_scale=True))
+    depths, pixels = member_depths(scene, index)
+    for v, members in enumerate(index.members):
+        z, pix = depths[v], pixels[v]
+        scale, spread = view_depth_scales([z], [ref[v].ravel()[pix]])[0]
+        margin = max(0.02, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        behind = near[v].ravel()[pix]
+        expected = (behind > 0) & (z / scale < (1.0 - margin) * behind)
+        np.testing.assert_array_equal(got[members], expected)
+    # the same depths for both: the default
+    np.testing.assert_array_equal(
+        revealing_gaussians(scene, index, near, margin=0.02, align_scale=True,
+                            scale_depths=near),
+        revealing_gaussians(scene, index, near, margin=0.02, align_scale=True))
 
 
 def test_tolerant_error_is_the_distance_to_the_box_and_equal_to_l1_for_a_point_box():
@@ -170,13 +268,14 @@ def test_options_are_validated_and_off_in_the_paper_presets():
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
         assert not cfg.expand_connected and cfg.refine_tolerance_depth
         assert cfg.depth_scale_reach == 0 and cfg.rounds == 1
-        assert cfg.refine_color_grow is None
+        assert cfg.refine_color_grow is None and cfg.edge_tolerance == 0
     for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
                        ("verify_tolerance", True), ("min_relative_score", 1.0),
                        ("min_relative_score", -0.1), ("refine_passes", 0),
                        ("refine_passes", 1.5), ("verify_mask", "none"), ("rounds", 0),
                        ("rounds", 2.5), ("refine_color_grow", -0.1),
-                       ("refine_color_grow", "high")):
+                       ("refine_color_grow", "high"), ("edge_tolerance", -1),
+                       ("edge_tolerance", 1.5)):
         with pytest.raises(ClearsplatError) as e:
             FilterConfig(**{field: bad})
         assert e.value.field == field
@@ -194,7 +293,7 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
                refine_tolerance=0, min_relative_score=0.0, refine_passes=1,
                expand_connected=False, refine_tolerance_depth=True, depth_scale_reach=0,
-               rounds=1)
+               rounds=1, edge_tolerance=0)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -214,7 +313,7 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
                                                          refine_passes=1,
                                                          expand_connected=False,
                                                          refine_tolerance_depth=True,
-                                                         rounds=1),
+                                                         rounds=1, edge_tolerance=0),
                               extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
                              extractor=ex)

@@ -64,6 +64,7 @@ ABLATIONS = {
     "+median-views": "default+relative_score_pool=median",
     "+support-margin": "default+support_margin=0.0001",
     "+align-depths": "default+align_depths=true",
+    "+edge-tol": "default+edge_tolerance=1",
 }
 
 

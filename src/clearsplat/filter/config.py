@@ -272,6 +272,14 @@ class FilterConfig:
         Gaussian's own pixel: the nearest surface within a few pixels of a small object on a
         sloping floor is the floor in front of it, so the tolerant depth test drops most of
         such an object.
+    edge_tolerance : int
+        The least radius in pixels of the ``refine`` tests' tolerance, in colour and in depth,
+        whatever ``refine_tolerance`` measures: views in register still place an occlusion edge
+        a pixel or so apart (each samples the edge at its own sub-pixel phase, and a
+        pixel-aligned prediction's edge pixel mixes both surfaces), so that a static surface's
+        edge stands "in front of" the background another view renders beside it. The depth
+        test takes this radius even where ``refine_tolerance_depth`` is False (the colour test
+        the larger of the two). 0: the tests at the Gaussian's own pixel where the views agree.
     min_relative_score : float
         Also require each test's removal to take away more than this share of the
         change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
@@ -407,6 +415,7 @@ class FilterConfig:
     refine_passes: int = 2
     expand_connected: bool = True
     refine_tolerance_depth: bool = False
+    edge_tolerance: int = 0
     depth_scale_reach: int = 0
     rounds: int | str = "auto"
     neighbours: int | None | str = "auto"
@@ -522,6 +531,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
+    "edge_tolerance": FieldSpec("integer", 0),
     "depth_scale_reach": FieldSpec("integer", 0),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
@@ -543,7 +553,7 @@ PRESETS = {
                           min_relative_score=0.0, relative_score_pool="sum",
                           color_explained=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
-                          depth_scale_reach=0, rounds=1, refine_color_grow=None,
+                          edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
@@ -554,7 +564,8 @@ PRESETS = {
                                 min_relative_score=0.0, relative_score_pool="sum",
                                 color_explained=None,
                                 refine_passes=1, expand_connected=False,
-                                refine_tolerance_depth=True, depth_scale_reach=0, rounds=1,
+                                refine_tolerance_depth=True, edge_tolerance=0,
+                                depth_scale_reach=0, rounds=1,
                                 refine_color_grow=None, neighbours=None,
                                 verify_views="centres"),
     # Today's default without the approximations that make it faster (bounded neighbourhoods

@@ -41,7 +41,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         reference_rgbs_hi: list[np.ndarray] | None = None,
                         scale_reach: int = 0, color_grow: float | None = None,
                         workers: int | None = None, members: tuple | None = None,
-                        color_distance: np.ndarray | None = None) -> np.ndarray:
+                        color_distance: np.ndarray | None = None,
+                        scale_depths: list[np.ndarray] | None = None) -> np.ndarray:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -90,6 +91,11 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     color_distance : (N,) float, optional
         :func:`color_distances` against the same reference colours, when the caller has them
         already (the colour test then reads them instead of measuring again).
+    scale_depths : list of (H, W) float, optional
+        With ``align_scale``: the reference depths the view's depth scale and spread are
+        measured against (default ``reference_depths``); ``edge_tolerance`` passes the reference
+        at each Gaussian's own pixel here, since its nearest surface within the radius is nearer
+        along every occlusion edge and would bias both.
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -103,15 +109,19 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
+        measured = behind
+        if align_scale and scale_depths is not None:
+            measured = np.zeros(members.size)
+            measured[valid] = scale_depths[view].ravel()[pix[valid]]
         view_margin = margin
         if align_scale and scale_reach > 0:
             cam = scene.cameras[view]
-            scale, spread = local_depth_scales(z, behind, pix, cam.height, cam.width,
+            scale, spread = local_depth_scales(z, measured, pix, cam.height, cam.width,
                                                reach=scale_reach)
             z = z / scale
             view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
         elif align_scale:
-            scale, spread = view_depth_scales([z], [behind])[0]
+            scale, spread = view_depth_scales([z], [measured])[0]
             z = z / scale
             # "In front" beyond this view's own depth noise, not only beyond the fixed margin.
             view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
@@ -369,7 +379,8 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
             _, lo, hi = reference
             distances = color_distances(state.scene, state.index, lo, images, members[1],
                                         reference_rgbs_hi=hi)
-        revealing = _in_front(state, reference, images, members, distances)
+        revealing = _in_front(state, reference, images, members, distances,
+                              scale_depths=_scale_depths(state, depths))
         proposed &= revealing
     return revealing, distances
 
@@ -400,15 +411,32 @@ def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, lis
 
 def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
     """The static reference as the tests read it: ``(depths, rgb_lo, rgb_hi)``, widened by
-    ``radii`` (``refine_tolerance``) where set; ``rgb_hi`` None where nothing is widened."""
-    if radii == 0:
+    ``radii`` (``refine_tolerance``, at least ``edge_tolerance``) where set; ``rgb_hi`` None
+    where nothing is widened. The depths take the same radii with ``refine_tolerance_depth``,
+    else ``edge_tolerance`` alone."""
+    config = state.config
+    edge = config.edge_tolerance
+    if edge > 0:
+        radii = [max(int(r), edge) for r in
+                 ([radii] * len(reference) if np.isscalar(radii) else radii)]
+    if np.isscalar(radii) and radii == 0:
         return reference, reference_rgb, None
-    nearest, lo, hi = tolerant_reference(reference, reference_rgb, radii)
-    return (nearest if state.config.refine_tolerance_depth else reference), lo, hi
+    depth_radii = radii if config.refine_tolerance_depth else edge
+    nearest, lo, hi = tolerant_reference(reference, reference_rgb, radii,
+                                         depth_radius=depth_radii)
+    return (nearest if config.refine_tolerance_depth or edge > 0 else reference), lo, hi
+
+
+def _scale_depths(state, reference: list) -> list | None:
+    """The depths :func:`revealing_gaussians` measures each view's depth scale against: the
+    static reference at each Gaussian's own pixel under ``edge_tolerance`` (None: the depths it
+    tests against)."""
+    return reference if state.config.edge_tolerance > 0 else None
 
 
 def _in_front(state, reference: tuple, images: list, members: tuple,
-              distances: np.ndarray | None = None) -> np.ndarray:
+              distances: np.ndarray | None = None,
+              scale_depths: list | None = None) -> np.ndarray:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
     (:func:`_tolerant`)."""
     config = state.config
@@ -421,7 +449,7 @@ def _in_front(state, reference: tuple, images: list, members: tuple,
                                scale_reach=config.depth_scale_reach,
                                color_grow=config.refine_color_grow,
                                workers=config.num_threads, members=members,
-                               color_distance=distances)
+                               color_distance=distances, scale_depths=scale_depths)
 
 
 def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:

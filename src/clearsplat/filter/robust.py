@@ -196,27 +196,32 @@ def box_extreme(a: np.ndarray, radius: int, op=np.minimum) -> np.ndarray:
     return out
 
 
-def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius
-                       ) -> tuple[list, list, list]:
+def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius, *,
+                       depth_radius=None) -> tuple[list, list, list]:
     """The static reference of ``refine`` made tolerant to a misregistration of ``radius`` px
     (one radius for every view, or a list with one per view; 0 leaves a view as it is).
 
-    Returns ``(depths, rgb_lo, rgb_hi)``: per view, the nearest reference depth within the
-    radius (a Gaussian is in front only if it is in front of every surface the other views show
-    nearby; 0 stays "nothing there" where the whole window is empty), and the per-channel range
-    of the reference colours within the radius (NaN where the pixel's own colour is NaN).
+    Returns ``(depths, rgb_lo, rgb_hi)``: per view, the nearest reference depth within
+    ``depth_radius`` (the same form; default ``radius``: a Gaussian is in front only if it is
+    in front of every surface the other views show nearby; 0 stays "nothing there" where the
+    whole window is empty), and the per-channel range of the reference colours within
+    ``radius`` (NaN where the pixel's own colour is NaN).
     """
-    radii = [radius] * len(depths) if np.isscalar(radius) else list(radius)
+    def per_view(r):
+        return [r] * len(depths) if np.isscalar(r) else list(r)
+    radii = per_view(radius)
+    depth_radii = radii if depth_radius is None else per_view(depth_radius)
     out_d, out_lo, out_hi = [], [], []
-    for d, rgb, r in zip(depths, rgbs, radii):
-        if r <= 0:
+    for d, rgb, r, rd in zip(depths, rgbs, radii, depth_radii):
+        if rd <= 0:
             out_d.append(d)
+        else:
+            near = box_extreme(np.where(d > 0, d, np.inf), int(rd), np.minimum)
+            out_d.append(np.where(np.isfinite(near), near, 0.0))
+        if r <= 0:
             out_lo.append(rgb)
             out_hi.append(rgb)
             continue
-        far = np.where(d > 0, d, np.inf)
-        near = box_extreme(far, int(r), np.minimum)
-        out_d.append(np.where(np.isfinite(near), near, 0.0))
         missing = np.isnan(rgb)
         lo = box_extreme(np.where(missing, np.inf, rgb), int(r), np.minimum)
         hi = box_extreme(np.where(missing, -np.inf, rgb), int(r), np.maximum)
