@@ -270,8 +270,7 @@ def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(m
         chosen.extend(out)
         return out
     monkeypatch.setattr(pipeline, "explained_candidates", every_second_range)
-    res = filter_distractors(scene, config=FilterConfig(color_explained=0.9),
-                             extractor=get_extractor("local"))
+    res = filter_distractors(scene, config=FilterConfig(), extractor=get_extractor("local"))
     assert chosen                              # some second-range candidates passed
     for c in chosen:
         assert not c.accepted and c.reason.startswith("explained")

@@ -481,6 +481,20 @@ def _two_runs(scene, one, ex):
     return first, kept, second, expect
 
 
+def _two_rounds_are_two_runs(scene, one, ex):
+    """``one.replace(rounds=2)`` on ``scene`` against :func:`_two_runs`: the same keep mask,
+    and the second round's candidates those of the second run, with their scores and reasons.
+    Returns ``(first, second, both)``."""
+    first, _, second, expect = _two_runs(scene, one, ex)
+    both = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
+    np.testing.assert_array_equal(both.keep, expect)
+    later = both.candidates[len(first.candidates):]
+    assert all(c.round == 2 for c in later) and len(later) == len(second.candidates)
+    for got, want in zip(later, second.candidates):
+        assert got.scores == want.scores and got.reason == want.reason
+    return first, second, both
+
+
 def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     """``rounds=2`` is the filter run once, then run again on the scene without what it
     removed, the second run's removals and candidates mapped back to the whole scene."""
@@ -632,14 +646,9 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
     # Without min_relative_score the first round leaves something for the second on this
     # small scene.
     one = FilterConfig(rounds=1, min_relative_score=0.0)
-    first, kept, second, expect = _two_runs(scene, one, ex)
-    res = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
+    _, second, res = _two_rounds_are_two_runs(scene, one, ex)
     assert res.stats["views_derived"] == scene.num_views
-    np.testing.assert_array_equal(res.keep, expect)
-    later = [c.record() for c in res.candidates if c.round == 2]
-    assert len(later) == len(second.candidates) > 0
-    for got, want in zip(later, (c.record() for c in second.candidates)):
-        assert got["scores"] == want["scores"]
+    assert len(second.candidates) > 0
 
 
 def _joined_by_flood_fill(seeds, weak, pixels, h, w):
@@ -721,9 +730,5 @@ def test_rounds_with_color_explained_are_runs_on_what_each_kept():
     scene, _ = realistic_reconstruction(world, "pose", seed=0)
     ex = get_extractor("local")
     one = FilterConfig(rounds=1, color_explained=0.9)
-    first, kept, second, expect = _two_runs(scene, one, ex)
-    both = filter_distractors(scene, config=one.replace(rounds=2), extractor=ex)
-    np.testing.assert_array_equal(both.keep, expect)
+    first, second, _ = _two_rounds_are_two_runs(scene, one, ex)
     assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
-    later = both.candidates[len(first.candidates):]
-    assert [c.reason for c in later] == [c.reason for c in second.candidates]

@@ -421,10 +421,10 @@ def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
                  ([radii] * len(reference) if np.isscalar(radii) else radii)]
     if np.isscalar(radii) and radii == 0:
         return reference, reference_rgb, None
+    # Without refine_tolerance_depth the depths take edge_tolerance alone: 0 returns them as
+    # they are.
     depth_radii = radii if config.refine_tolerance_depth else edge
-    nearest, lo, hi = tolerant_reference(reference, reference_rgb, radii,
-                                         depth_radius=depth_radii)
-    return (nearest if config.refine_tolerance_depth or edge > 0 else reference), lo, hi
+    return tolerant_reference(reference, reference_rgb, radii, depth_radius=depth_radii)
 
 
 def _scale_depths(state, reference: list) -> list | None:
