@@ -317,6 +317,31 @@ def test_prepared_with_keep_runs_equals_subset(world, seed):
         np.testing.assert_array_equal(np.flatnonzero(keep)[prepare(scene.subset(keep), cam)
                                                            .visible], view.visible)
 
+
+@pytest.mark.parametrize("share", [0.0, 0.02, 0.3, 1.0])
+def test_prepared_with_keep_over_many_chunks_equals_subset(share):
+    # Enough Gaussians for the projection to split them into many chunks, whose kept
+    # Gaussians it packs together (chunks with none kept included): the same records, order
+    # and renders as the subset, whatever the thread count.
+    rng = np.random.default_rng(7)
+    n = 40_000
+    g = random_gaussians(rng, n, spread=1.2)
+    g.scales[:] *= 0.2
+    cam = make_camera(96, 64, eye=(0.4, 0.3, -3.0))
+    scene = Scene(g, np.zeros(n, np.int32), None, [cam])
+    lengths = rng.integers(1, 2500, size=200)
+    runs = np.repeat(rng.uniform(size=lengths.size) < share, lengths)
+    keep = np.zeros(n, bool)
+    keep[:min(n, runs.size)] = runs[:n]
+    subset = scene.subset(keep)
+    expected = render(subset, cam)
+    for threads in (1, 3):
+        view = prepare(scene, cam, keep=keep, num_threads=threads)
+        assert_same(view.render(), expected)
+        np.testing.assert_array_equal(
+            np.flatnonzero(keep)[prepare(subset, cam, num_threads=threads).visible],
+            view.visible)
+
 def test_prepared_render_equals_render(world):
     scene, _ = world
     view = prepare(scene, scene.cameras[1])

@@ -287,13 +287,29 @@ ProjectResult project(const ProjectInputs& in, const ProjectParams& p, int num_t
     const int64_t num_chunks = std::max<int64_t>(1, std::min<int64_t>(n / 4096 + 1, 64 * num_threads));
     const int64_t chunk = (n + num_chunks - 1) / num_chunks;
     std::vector<int64_t> counts(num_chunks + 1, 0);
+    // Chunk c writes its records from start[c] on. With a keep mask the chunks' kept
+    // Gaussians are counted first, so that the temporaries hold those alone (a neighbourhood of
+    // a dense capture keeps a small part of the scene), not one slot per Gaussian.
+    std::vector<int64_t> start(num_chunks + 1, 0);
+    if (in.keep) {
+#pragma omp parallel for schedule(static) num_threads(num_threads)
+        for (int64_t c = 0; c < num_chunks; ++c) {
+            const int64_t begin = c * chunk, end = std::min(n, begin + chunk);
+            int64_t kept = 0;
+            for (int64_t i = begin; i < end; ++i) kept += in.keep[i] != 0;
+            start[c + 1] = kept;
+        }
+        for (int64_t c = 0; c < num_chunks; ++c) start[c + 1] += start[c];
+    } else {
+        for (int64_t c = 0; c <= num_chunks; ++c) start[c] = std::min(n, c * chunk);
+    }
     // Temporaries (reused across calls): records in Gaussian order, then sort keys and values.
     auto carve = [](char*& at, size_t bytes) {
         char* p = at;
         at += (bytes + 63) / 64 * 64;
         return p;
     };
-    const size_t n1 = size_t(std::max<int64_t>(n, 1));
+    const size_t n1 = size_t(std::max<int64_t>(start[num_chunks], 1));
     char* at = scratch(n1 * (sizeof(Splat) + sizeof(Rect) + 5 * sizeof(uint32_t)) + 6 * 64);
     Splat* tmp_splats = reinterpret_cast<Splat*>(carve(at, n1 * sizeof(Splat)));
     Rect* tmp_rects = reinterpret_cast<Rect*>(carve(at, n1 * sizeof(Rect)));
@@ -304,7 +320,7 @@ ProjectResult project(const ProjectInputs& in, const ProjectParams& p, int num_t
 #pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
     for (int64_t c = 0; c < num_chunks; ++c) {
         const int64_t begin = c * chunk, end = std::min(n, begin + chunk);
-        int64_t k = begin;
+        int64_t k = start[c];
         Block block;
         for (int64_t i0 = begin; i0 < end; i0 += kBlock) {
             const int cnt = int(std::min<int64_t>(kBlock, end - i0));
@@ -318,7 +334,7 @@ ProjectResult project(const ProjectInputs& in, const ProjectParams& p, int num_t
                 if (finish_one(i, j, block, in, p, tmp_splats[k], tmp_rects[k])) tmp_index[k++] = uint32_t(i);
             }
         }
-        counts[c + 1] = k - begin;
+        counts[c + 1] = k - start[c];
     }
     for (int64_t c = 0; c < num_chunks; ++c) counts[c + 1] += counts[c];
     const int64_t num = counts[num_chunks];
@@ -327,7 +343,7 @@ ProjectResult project(const ProjectInputs& in, const ProjectParams& p, int num_t
     // values: position in the compacted, index-ordered sequence.
 #pragma omp parallel for schedule(static) num_threads(num_threads)
     for (int64_t c = 0; c < num_chunks; ++c) {
-        const int64_t src = c * chunk, dst = counts[c], len = counts[c + 1] - counts[c];
+        const int64_t src = start[c], dst = counts[c], len = counts[c + 1] - counts[c];
         for (int64_t j = 0; j < len; ++j) {
             std::memcpy(&keys[dst + j], &tmp_splats[src + j].depth, 4);
             pos[dst + j] = uint32_t(src + j);

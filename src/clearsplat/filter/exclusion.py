@@ -57,6 +57,8 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
             r_full, r_excl = _update_pair(pv, own[i], touched[i], previous, i)
         else:
             r_full, r_excl = pv.render_pair(keep=~own[i])     # R_i and R_i^-i in one pass
+            if previous is not None:    # prepared afresh: the round before's are not read
+                previous.full[i] = previous.excl[i] = None
         full.append(r_full)
         excl.append(r_excl)
         state.lap("exclusion_renders")
