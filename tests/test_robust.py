@@ -1,6 +1,8 @@
 """The filter's options for real backbones (clearsplat.filter.robust and where they plug in),
 each against a slow reference or a closed form, and the paper presets untouched by them."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -526,6 +528,15 @@ def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
     assert res.timings["total"] == pytest.approx(res.timings["proposal"]
                                                  + res.timings["verification"])
     assert res.summary()["candidates"][-1]["round"] == 2
+    # The filter never reads per-Gaussian extras (a later round leaves them out of its copy):
+    # a scene that carries some gives the same rounds.
+    g = scene.gaussians
+    extras = {"normals": np.random.default_rng(0).normal(size=(len(g), 3)).astype(np.float32),
+              "feature": np.arange(len(g), dtype=np.float64)}
+    rich = dataclasses.replace(scene, gaussians=dataclasses.replace(g, extra=extras))
+    again = filter_distractors(rich, config=one.replace(rounds=2), extractor=ex)
+    np.testing.assert_array_equal(again.keep, res.keep)
+    assert [c.record() for c in again.candidates] == [c.record() for c in res.candidates]
 
 
 @pytest.fixture

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import ClearsplatError
 from ..features import get_extractor
-from ..scene import Scene
+from ..scene import Gaussians, Scene
 from .align import aligned_scene, view_depth_alignment
 from .association import RegionMap, prune_views
 from .backend import backend_for
@@ -105,7 +105,7 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             if kept.size == n:          # nothing removed: a new round would find the same
                 break
             previous, carry = carry, None
-            later, carry = run_round(scene.subset(kept), config, extractor, backend,
+            later, carry = run_round(_kept_scene(scene, kept), config, extractor, backend,
                                      in_round(report, round_), previous=previous,
                                      hold=round_ < rounds, plan=plan)
             previous = None             # spent (the round released it)
@@ -117,6 +117,16 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             if c is not None:
                 c.release()
     return result
+
+
+def _kept_scene(scene: Scene, kept: np.ndarray) -> Scene:
+    """The scene a later round runs on: the ``kept`` Gaussians, without the per-Gaussian
+    attributes the filter never reads (``Gaussians.extra``: a PLY's normals or features would
+    be copied for nothing)."""
+    g = scene.gaussians
+    bare = Gaussians(g.means[kept], g.scales[kept], g.quats[kept], g.opacities[kept], g.sh[kept])
+    return Scene(bare, scene.view_id[kept], scene.pixel_id[kept], scene.cameras, scene.images,
+                 scene.render_settings)
 
 
 def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Progress, *,
