@@ -195,25 +195,3 @@ def test_view_index_gathers_the_gaussians_of_a_region():
         expected = np.flatnonzero((view == v) & region.ravel()[pixel])
         assert np.array_equal(region_gaussians(scene, v, region, index=index), expected)
 
-
-def test_region_and_candidate_pixels_are_held_compactly():
-    # A region's pixels are its cells upsampled when read; a candidate keeps its mask as
-    # packed bits and gives back the same (H, W) bool mask, a new array on each read.
-    from clearsplat.features.base import upsample_nearest
-    from clearsplat.filter.proposal import Region
-    from clearsplat.filter.result import Candidate
-    rng = np.random.default_rng(3)
-    cells = rng.uniform(size=(5, 9)) < 0.3
-    region = Region(view=2, range=1, cells=cells, shape=(70, 141))
-    np.testing.assert_array_equal(region.pixels, upsample_nearest(cells, 70, 141))
-    for shape in [(70, 141), (1, 1), (3, 8)]:
-        mask = rng.uniform(size=shape) < 0.4
-        c = Candidate(0, 2, 1, mask, np.arange(4))
-        got = c.pixels
-        assert got.dtype == bool and got.shape == shape
-        np.testing.assert_array_equal(got, mask)
-        got[...] = ~got                       # a copy: the candidate keeps its region
-        np.testing.assert_array_equal(c.pixels, mask)
-        assert c._pixels[0].nbytes <= mask.size // 8 + 1
-        c.pixels = ~mask                       # assignment replaces the region
-        np.testing.assert_array_equal(c.pixels, ~mask)

@@ -36,21 +36,14 @@ class Region:
         1 for the first similarity range (s < tau1), 2 for the second [r_k].
     cells : (h, w) bool
         The component on the feature grid.
-    shape : (int, int)
-        The image's (H, W).
     pixels : (H, W) bool
-        The component upsampled to the image (nearest neighbour) [M_k]; computed from
-        ``cells`` when read (a dense capture holds thousands of regions).
+        The component upsampled to the image (nearest neighbour) [M_k].
     """
 
     view: int
     range: int
     cells: np.ndarray
-    shape: tuple
-
-    @property
-    def pixels(self) -> np.ndarray:
-        return upsample_nearest(self.cells, *self.shape)
+    pixels: np.ndarray
 
 
 @dataclass(eq=False)
@@ -192,9 +185,9 @@ def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
     masks = {1: np.zeros((height, width), bool), 2: np.zeros((height, width), bool)}
     for r in (1, 2):
         for cells in connected_regions(ranges, r):
-            region = Region(view=view, range=r, cells=cells, shape=(height, width))
-            out.regions.append(region)
-            masks[r] |= region.pixels
+            pixels = upsample_nearest(cells, height, width)
+            out.regions.append(Region(view=view, range=r, cells=cells, pixels=pixels))
+            masks[r] |= pixels
     out.mask1, out.mask2 = masks[1], masks[2]
     return out
 

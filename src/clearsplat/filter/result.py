@@ -81,22 +81,6 @@ class Candidate:
         }
 
 
-def _get_pixels(self) -> np.ndarray:
-    bits, shape = self._pixels
-    return np.unpackbits(bits, count=int(np.prod(shape))).view(bool).reshape(shape)
-
-
-def _set_pixels(self, value) -> None:
-    # Held as packed bits (an eighth of a bool mask): a dense capture has thousands of
-    # candidates, each with a mask of the whole image.
-    mask = np.asarray(value, dtype=bool)
-    self._pixels = (np.packbits(mask, axis=None), mask.shape)
-
-
-Candidate.pixels = property(_get_pixels, _set_pixels,
-                            doc="(H, W) bool: the region [M_k] (a new array on each read).")
-
-
 @dataclass(eq=False)
 class FilterResult:
     """What :func:`filter_distractors` found.
