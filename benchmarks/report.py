@@ -564,8 +564,8 @@ filter, whose verification seconds are the fifth column), the same with `--views
 street --repeats 1`, and `python benchmarks/gpu_decisions.py --views 4,8 --set backend=torch`
 (the CPU totals, and two GPU runs that agree with each other). The 64-view row did not finish
 within the time we had on the machine. For scale: the paper reports 3.24 s (DepthSplat, 8
-views) and 3.86 s (ReSplat, 16 views) on an RTX 4090; the 2-core VM of "Speed" above takes
-3.84 and 11.31 s.
+views) and 3.86 s (ReSplat, 16 views) on an RTX 4090; the 2-core VM's figures for the same
+scenes are in "Speed" above.
 
 **Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 8` (same
 machine): 9.1 s under the profiler, of which the GPU is busy 2.9 s (31 %); the filter issues
