@@ -194,4 +194,3 @@ def test_view_index_gathers_the_gaussians_of_a_region():
         region = rng.random((8, 12)) < 0.3
         expected = np.flatnonzero((view == v) & region.ravel()[pixel])
         assert np.array_equal(region_gaussians(scene, v, region, index=index), expected)
-

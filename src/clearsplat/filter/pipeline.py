@@ -19,13 +19,14 @@ next round                             :mod:`.rounds`
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
 
 from ..errors import ClearsplatError
 from ..features import get_extractor
-from ..scene import Gaussians, Scene
+from ..scene import Scene
 from .align import aligned_scene, view_depth_alignment
 from .association import RegionMap, prune_views
 from .backend import backend_for
@@ -123,10 +124,8 @@ def _kept_scene(scene: Scene, kept: np.ndarray) -> Scene:
     """The scene a later round runs on: the ``kept`` Gaussians, without the per-Gaussian
     attributes the filter never reads (``Gaussians.extra``: a PLY's normals or features would
     be copied for nothing)."""
-    g = scene.gaussians
-    bare = Gaussians(g.means[kept], g.scales[kept], g.quats[kept], g.opacities[kept], g.sh[kept])
-    return Scene(bare, scene.view_id[kept], scene.pixel_id[kept], scene.cameras, scene.images,
-                 scene.render_settings)
+    bare = dataclasses.replace(scene.gaussians, extra={})     # shares the arrays
+    return dataclasses.replace(scene, gaussians=bare).subset(kept)
 
 
 def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Progress, *,
