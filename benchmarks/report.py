@@ -546,57 +546,59 @@ every image, so little can be pruned.
 """,
     "gpu": """## On a GPU
 
-Measured once, on 2026-11-26, on a GPU machine we had for a short time: one NVIDIA H100
-80GB HBM3 (driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.3.1 built here
-as a wheel; default config (two rounds), object scenes at 256x448 (street at 32 views). That
-machine is not at hand, so this page's command does not regenerate these figures.
+Measured on 2026-11-26 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
+driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.3.6 built
+there as a wheel; default config (two rounds), object scenes at 256x448 (street at 32 views).
+That machine is not at hand, so this page's command does not regenerate these figures.
 
-| views | torch backend on the H100, total s | its verification s | GPU peak GB | native CPU filter, the same 16 cores: total s / verification s | same decisions |
+| views | torch backend on the H200, total s | its verification s | GPU peak GB | native CPU filter, the same 16 cores: total s / verification s | same decisions |
 |---|---|---|---|---|---|
-| 4 | 1.30 | 0.38 | 0.97 | 0.94 / 0.16 | yes |
-| 8 | 6.60 | 1.95 | 1.76 | 3.30 / 0.79 | no: 205 of 17,831 removed Gaussians differ |
-| 16 | 23.42 | 5.75 | 4.37 | — / 1.87 | no |
-| 32 (street) | 34.85 | 11.90 | 5.64 | — / 5.34 | no |
+| 4 | 1.72 | 0.56 | 0.97 | 0.85 / 0.26 | yes |
+| 8 | 8.38 | 2.61 | 1.76 | 3.46 / 1.16 | no: 197 Gaussians differ (17,831 removed against 17,638) |
+| 16 | 25.24 | 6.13 | 4.37 | 8.43 / 2.48 | no |
+| 32 (street) | 40.52 | 13.08 | 5.64 | — / 5.81 | no |
 
 Commands: `python benchmarks/filter_speed.py --device cuda --set backend=torch --views 4,8,16
 --repeats 2 --full-repeats 1` (medians of 2 GPU runs; its second set of runs is the native CPU
-filter, whose verification seconds are the fifth column), the same with `--views 32 --family
-street --repeats 1`, and `python benchmarks/gpu_decisions.py --views 4,8 --set backend=torch`
-(the CPU totals, and two GPU runs that agree with each other). The 64-view row did not finish
-within the time we had on the machine. For scale: the paper reports 3.24 s (DepthSplat, 8
-views) and 3.86 s (ReSplat, 16 views) on an RTX 4090; the 2-core VM's figures for the same
-scenes are in "Speed" above.
+filter, whose verification seconds give the 32-view row's fifth column), the same with
+`--views 32 --family street --repeats 1`, `python benchmarks/filter_speed.py --views 8,16
+--repeats 2 --full-repeats 0` (the native filter's 8- and 16-view totals) and `python
+benchmarks/gpu_decisions.py --views 4,8 --set backend=torch` (the 4-view CPU total, and two GPU
+runs that agree with each other). For scale: the paper reports 3.24 s (DepthSplat, 8 views)
+and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter on those 16 cores takes about
+what it takes on the 2-core VM ("Speed" above: 3.72 s at 8 views, 10.96 s at 16): its
+refinement and the verification's serial NumPy work do not spread over cores (at 8 views
+refinement 1.12 s on 16 cores, 1.14 s on 2).
 
-**Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 8` (same
-machine): 9.1 s under the profiler, of which the GPU is busy 2.9 s (31 %); the filter issues
-702,870 torch ops, 297,322 kernel launches (1.6 s of host time in the launch calls alone),
-17,679 stream synchronisations (1.3 s waiting, mostly for each render's copy back to NumPy) and
-20,467 copies. Of the GPU's 2.9 s, the float64 scans of compositing take 39 % and gathers 27 %:
-the backend expands every (Gaussian, pixel) fragment of a tile and scans them all, where a
-rasterizer kernel stops each pixel at its transmittance limit. At 4 views: 1.6 s, GPU busy
-0.35 s, 44,066 launches. So the backend is bound by launches and host round trips, and on the
-device by fragment expansion; 0.3 s at 8 views needs fused compositing kernels and stages that
-stay on the device, not a faster card.
+**Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 4` (same
+machine): 2.39 s under the profiler, of which the GPU is busy 0.34 s (14 %); the filter issues
+105,645 torch ops, 44,066 kernel launches (0.36 s of host time in the launch calls alone), 2,801
+stream synchronisations and 3,217 copies. Of the GPU's 0.34 s, the scans of compositing
+(`cumsum`) take 38 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of
+a tile and scans them all, where a rasterizer kernel stops each pixel at its transmittance
+limit. At 8 views the profiled run did not finish within the 80 s we gave it (the profiler's
+own overhead); the unprofiled run's steps (`filter_speed.py` above) grow with the renders'
+count the same way. So the backend is bound
+by launches and host round trips, and on the device by fragment expansion; 0.3 s at 8 views
+needs fused compositing kernels and stages that stay on the device, not a faster card.
 
 **Decisions.** The backend's renders agree with the native rasterizer's to float32 rounding on
-the GPU exactly as on CPU tensors (per view of the 8-view scene, the same largest differences on
-both devices). At 8 views and 256x448 that rounding flips a few decisions, on CPU tensors too
-(140 Gaussians differ there, 205 on the GPU): the support condition compares patch mean depths
-before and after the exclusion, and about a third of each view's patches differ by less than
-1e-5 of their depth, where rounding decides (`python benchmarks/support_rounding.py`). With
-`support_margin=1e-4`, which asks for a surface farther by more than rounding
-(`docs/method.md`), the backend on CPU tensors makes the native decisions on that scene exactly
-(`python benchmarks/gpu_decisions.py --views 8 --device cpu --set backend=torch --set
-support_margin=0.0001`: 0 Gaussians differ, 277 candidates each). The CUDA tests (`python -m pytest
-tests/test_torch_backend.py -k cuda`: renders against the native rasterizer and the reference,
-the filter's decisions at 4 and 8 views on the tests' small scenes, the keep mask on the device,
-the CLI) passed there: 10 passed.
+the GPU exactly as on CPU tensors. At 8 views and 256x448 that rounding flips a few decisions,
+on CPU tensors too: the support condition compares patch mean depths before and after the
+exclusion, and about a third of each view's patches differ by less than 1e-5 of their depth,
+where rounding decides (`python benchmarks/support_rounding.py`). With `support_margin=1e-4`,
+which asks for a surface farther by more than rounding (`docs/method.md`), the backend on CPU
+tensors makes the native decisions on that scene exactly (`python benchmarks/gpu_decisions.py
+--views 8 --device cpu --set backend=torch --set support_margin=0.0001`). The CUDA tests
+(`python -m pytest tests/test_torch_backend.py -k cuda`: renders against the native rasterizer
+and the reference, the filter's decisions at 4 and 8 views on the tests' small scenes, the keep
+mask on the device, the CLI) passed there: 10 passed.
 
-**gsplat** (`--set device=cuda`, the default backend on CUDA) was not measured: that
-machine had no gsplat and no network, and gsplat's PyPI release compiles its CUDA code on
-first use, which did not fit in the time we had. On every test run its path is checked through the fake gsplat of
-`tests/test_gsplat.py`; `python benchmarks/filter_speed.py --device cuda --views 4,8,16` and
-`python benchmarks/gpu_decisions.py --views 8,16` measure it where gsplat is installed.
+**gsplat** (`--set device=cuda`, the default backend on CUDA) was not measured: that machine had
+no gsplat and no network, and gsplat's PyPI release compiles its CUDA code on first use. On
+every test run its path is checked through the fake gsplat of `tests/test_gsplat.py`; `python
+benchmarks/filter_speed.py --device cuda --views 4,8,16` and `python benchmarks/gpu_decisions.py
+--views 8,16` measure it where gsplat is installed.
 """,
     "datasets": """## Real datasets: RobustNeRF and NeRF On-the-go
 
