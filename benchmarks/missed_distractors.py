@@ -14,7 +14,13 @@ in the first of these steps that lost it:
 - *no region*: in none of the proposal regions of the first round (the patch similarity,
   the support condition or the ranges left its pixels out);
 - *refined away*: in a region, but in no candidate: refinement found it not in front of the
-  static reference (nor different in colour from it);
+  static reference (nor different in colour from it). Split by where the Gaussian lies against
+  that reference (R_i^-i without every proposed Gaussian, rendered here from the first round's
+  regions, before the depth-scale alignment): *behind* it (another view's static content lies
+  in front of the distractor at its pixel: misplaced by depth or pose error, or an occlusion
+  edge), *within the margin* (in front by less than ``refine_margin``: a distractor on or next
+  to the surface behind it), *in front* (by more: the view's depth-scale alignment or the
+  second refinement pass dropped it);
 - *rejected (...)*: in a candidate that a test rejected, by the reason it gives.
 
 Prints the totals, then per input view the distractor Gaussians, those missed and their
@@ -32,13 +38,40 @@ import numpy as np
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians
-from clearsplat.render import prepare
+from clearsplat.filter.refine import member_pixels
+from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
 from clearsplat.synth.backbone import distractor_truth
 from clearsplat.synth.realism import parse_realism, realistic_reconstruction
 
 
-def _steps(scene, result, truth, min_weight: float) -> np.ndarray:
+def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
+                       margin: float) -> np.ndarray:
+    """For the ``lost`` Gaussians ((N,) bool), where each lies against the static reference of
+    its view: R_i^-i without the ``proposed`` Gaussians, R_i^-i where that leaves a hole (as
+    refinement builds it). Returns their step names, in the order of ``np.flatnonzero(lost)``."""
+    names = np.empty(int(lost.sum()), dtype=object)
+    where = np.flatnonzero(lost)
+    own = scene.view_id
+    for v in np.unique(own[where]):
+        cam = scene.cameras[v]
+        static = render(scene, cam, keep=(own != v) & ~proposed)
+        excl = render(scene, cam, keep=own != v)
+        ref = np.where(static.alpha > 0.1, static.depth, excl.depth).ravel()
+        sel = own[where] == v
+        g = where[sel]
+        pos = np.searchsorted(index.members[v], g)
+        pix = member_pixels(scene, index, v)[pos]
+        z = cam.to_camera(scene.gaussians.means[g])[:, 2]
+        r = np.where(pix >= 0, ref[np.clip(pix, 0, None)], 0.0)
+        names[sel] = np.where(r <= 0, "refined away: reference empty",
+                     np.where(z >= r, "refined away: behind the static reference",
+                     np.where(z >= (1 - margin) * r, "refined away: within the margin",
+                              "refined away: in front by more")))
+    return names
+
+
+def _steps(scene, result, truth, min_weight: float, margin: float) -> np.ndarray:
     """(N,) object: the step that lost each missed distractor Gaussian ('' elsewhere)."""
     n = len(scene)
     index = ViewIndex(scene)
@@ -52,7 +85,8 @@ def _steps(scene, result, truth, min_weight: float) -> np.ndarray:
     step = np.full(n, "", dtype=object)
     missed = truth & result.keep
     step[missed & ~in_region] = "no region"
-    step[missed & in_region] = "refined away"
+    step[missed & in_region] = _against_reference(scene, index, missed & in_region, in_region,
+                                                  margin)
     for c in result.candidates:      # the latest test a candidate reached names the loss
         if not c.accepted:
             lost = c.gaussians[missed[c.gaussians]]
@@ -83,13 +117,13 @@ def main(argv=None) -> int:
         scene = reconstruct(world.cameras, world.images, world.depths, seed=args.seed)
         truth = distractor_truth(scene, world)
     result = filter_distractors(scene, config=config)
-    step = _steps(scene, result, truth, config.association_min_weight)
+    step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin)
     missed = truth & result.keep
     print(f"{args.realism} {args.family}, {args.views} views at {w}x{h}, seed {args.seed}, "
           f"{args.config}: recall {1 - missed.sum() / max(truth.sum(), 1):.3f} "
           f"({int(missed.sum()):,} of {int(truth.sum()):,} distractor Gaussians missed)")
     for name, count in Counter(step[missed]).most_common():
-        print(f"  {name:34s} {count:7,}")
+        print(f"  {name:44s} {count:7,}")
     print(f"\n{'view':>4} {'distractor':>10} {'missed':>7}  steps")
     for v in range(scene.num_views):
         own = scene.view_id == v
