@@ -239,6 +239,23 @@ def test_median_pool_neither_carried_nor_vetoed_by_one_view():
     loose = FilterConfig(relative_score_pool="median", min_relative_score=0.0)
     assert passes(total, loose, [Partial(-1.0, 1.0, 1.0)] * 3)
     assert median_relative_score([]) == 0.0 and median_relative_score([Partial()]) == 0.0
+    # Views where the removal changes a few pixels (under a twentieth of the weight of the view
+    # it changes most) have shares that say nothing: they do not vote. A median outvotes one
+    # view only among three: with fewer voters the share pooled over every view decides.
+    heavy = Partial(0.7 * 30.0, 30.0, 30.0)                  # share 0.7 on most of the weight
+    faint = [Partial(0.05 * 1.4, 1.4, 1.4), Partial(0.0, 0.3, 0.3)]   # shares 0.05 and 0
+    pooled = (0.7 * 30.0 + 0.05 * 1.4) / (30.0 + 1.4 + 0.3)
+    assert median_relative_score([heavy] + faint) == pytest.approx(pooled)
+    total = Partial()
+    for p in [heavy] + faint:
+        total.add(p)
+    assert passes(total, median, [heavy] + faint)
+    # Two voters, one against (share -0.5 on a third of the weight): pooled, not their mean.
+    against = Partial(-0.5 * 15.0, 15.0, 15.0)
+    assert median_relative_score([heavy, against]) == pytest.approx((21.0 - 7.5) / 45.0)
+    # At a twentieth of the heaviest weight a view votes: the median of 0.7, 0.05 and -0.5.
+    counted = Partial(0.05 * 1.5, 1.5, 1.5)
+    assert median_relative_score([heavy, counted, against]) == pytest.approx(0.05)
     with pytest.raises(ClearsplatError):
         FilterConfig(relative_score_pool="mean")
 

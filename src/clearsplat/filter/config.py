@@ -291,10 +291,12 @@ class FilterConfig:
         How the individual test pools its verification views for ``min_relative_score``.
         ``"sum"``: the share over all of them together (one view with a large change decides
         alone, either way). ``"median"``: the median of each view's own share, over the views
-        where the removal changes a pixel, so that one view neither carries a candidate (a
-        surface only the candidate's view sees, smeared over another view's render) nor vetoes
-        it (pixels that neither render explains, where that view's own distractor or a
-        misplaced surface stands). The score condition (``min_score``) stays pooled over the
+        where the removal changes at least a twentieth of what it changes in the view it
+        changes most (a view where it touches a few pixels has a share that says nothing;
+        with fewer than three such views, the pooled share), so that one view neither carries
+        a candidate (a surface only the candidate's view sees, smeared over another view's
+        render) nor vetoes it (pixels that neither render explains, where that view's own
+        distractor or a misplaced surface stands). The score condition (``min_score``) stays pooled over the
         views, as in the paper.
     color_explained : float or None
         Reject a candidate whose removal would take away only what the other views already show

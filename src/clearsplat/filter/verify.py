@@ -308,11 +308,27 @@ def passes(total: Partial, config, per_view: list | None = None) -> bool:
     return total.relative_score > config.min_relative_score
 
 
+#: ``relative_score_pool="median"`` takes the median over the views whose change weight is at
+#: least this share of the largest view's: a view where the removal changes a few pixels has
+#: a share that says nothing of the candidate.
+_MEDIAN_MIN_WEIGHT = 0.05
+
+
 def median_relative_score(per_view: list) -> float:
-    """The median of :attr:`Partial.relative_score` over the views whose terms carry weight
-    (the removal changes a pixel there; 0 when none does)."""
-    shares = [p.relative_score for p in per_view if p.den > 0]
-    return float(np.median(shares)) if shares else 0.0
+    """The median of :attr:`Partial.relative_score` over the views whose terms carry weight:
+    at least a twentieth of the weight (``den``) of the view that carries most. A median
+    outvotes one view only among three or more: with one or two such views, the share pooled
+    over every view (0 when none carries any weight)."""
+    top = max((p.den for p in per_view), default=0.0)
+    if not top > 0:
+        return 0.0
+    shares = [p.relative_score for p in per_view if p.den >= _MEDIAN_MIN_WEIGHT * top]
+    if len(shares) < 3:
+        total = Partial()
+        for p in per_view:
+            total.add(p)
+        return total.relative_score
+    return float(np.median(shares))
 
 
 def individual_tests(state, candidates: list, q: dict, verifier, renders) -> list:
