@@ -564,7 +564,9 @@ filter, whose verification seconds give the 32-view row's fifth column), the sam
 `--views 32 --family street --repeats 1`, `python benchmarks/filter_speed.py --views 8,16
 --repeats 2 --full-repeats 0` (the native filter's 8- and 16-view totals) and `python
 benchmarks/gpu_decisions.py --views 4,8 --set backend=torch` (the 4-view CPU total, and two GPU
-runs that agree with each other). For scale: the paper reports 3.24 s (DepthSplat, 8 views)
+runs that agree with each other); `bash benchmarks/gpu_check.sh OUTDIR` runs them, the CUDA
+tests and the profile below in one go on a CUDA machine (it builds a wheel of the checkout
+first and caps each step in time). For scale: the paper reports 3.24 s (DepthSplat, 8 views)
 and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter on those 16 cores takes about
 what it takes on the 2-core VM ("Speed" above: 3.72 s at 8 views, 10.96 s at 16): its
 refinement and the verification's serial NumPy work do not spread over cores (at 8 views
