@@ -296,8 +296,8 @@ class FilterConfig:
         with fewer than three such views, the pooled share), so that one view neither carries
         a candidate (a surface only the candidate's view sees, smeared over another view's
         render) nor vetoes it (pixels that neither render explains, where that view's own
-        distractor or a misplaced surface stands). The score condition (``min_score``) stays pooled over the
-        views, as in the paper.
+        distractor or a misplaced surface stands). The score condition (``min_score``) stays
+        pooled over the views, as in the paper.
     color_explained : float or None
         Reject a candidate whose removal would take away only what the other views already show
         where its view shows it, within that view's misregistration: static content out of
