@@ -224,8 +224,9 @@ def test_median_pool_neither_carried_nor_vetoed_by_one_view():
         total.add(p)
     assert total.score > 0 and total.relative_score < 0.2          # vetoed when pooled
     assert median_relative_score(views) == pytest.approx(0.46)     # the middle of 3 views
-    summed = FilterConfig()
-    median = FilterConfig(relative_score_pool="median")
+    summed = FilterConfig(relative_score_pool="sum")
+    median = FilterConfig()                                        # the default pools by median
+    assert median.relative_score_pool == "median"
     assert not passes(total, summed, views) and passes(total, median, views)
     # One view alone carrying a candidate that the others find no better: pooled it passes,
     # the median of the views' shares does not.
@@ -434,6 +435,43 @@ def test_expand_connected_only_adds_to_the_expansion(soft_scene):
         if b.expanded is not None:
             assert set(b.expanded) <= set(a.expanded)
     assert any(c.expanded is not None for c in off.candidates)
+
+
+def test_revealing_by_depth_is_the_test_without_colours():
+    """``by_depth=True`` also returns the Gaussians the depth test alone keeps: the same as
+    the test without ``color_threshold``, within the full test's."""
+    world = make_world("object", num_views=3, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "all", seed=0)
+    index = ViewIndex(scene)
+    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
+    rgb = [np.asarray(im, np.float64) for im in world.clean_images]
+    near, lo, hi = tolerant_reference(ref, rgb, 1)
+    kw = dict(margin=0.02, reference_rgbs=lo, reference_rgbs_hi=hi, color_threshold=0.3,
+              align_scale=True)
+    full, depth = revealing_gaussians(scene, index, near, by_depth=True, **kw)
+    np.testing.assert_array_equal(full, revealing_gaussians(scene, index, near, **kw))
+    np.testing.assert_array_equal(
+        depth, revealing_gaussians(scene, index, near, **{**kw, "color_threshold": None}))
+    assert not (depth & ~full).any() and (full & ~depth).any() and depth.any()
+
+
+def test_expansion_by_depth_only_drops_what_the_colour_test_alone_kept(soft_scene):
+    """``expand_color=False`` decides every candidate as before and expands each to a subset
+    of its former expansion that still holds the candidate's own Gaussians."""
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    cfg = FilterConfig(rounds=1)
+    on = filter_distractors(scene, config=cfg, extractor=ex)
+    off = filter_distractors(scene, config=cfg.replace(expand_color=False), extractor=ex)
+    assert [c.scores.get("individual") for c in on.candidates] == \
+        [c.scores.get("individual") for c in off.candidates]
+    dropped = 0
+    for a, b in zip(on.candidates, off.candidates):
+        assert (a.expanded is None) == (b.expanded is None)
+        if b.expanded is not None:
+            assert set(b.gaussians) <= set(b.expanded) <= set(a.expanded)
+            dropped += len(a.expanded) - len(b.expanded)
+    assert dropped > 0
 
 
 def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):

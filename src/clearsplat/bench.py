@@ -46,6 +46,7 @@ ABLATIONS = {
     "no-refine-tol": "default+refine_tolerance=0",
     "tol-depth": "default+refine_tolerance_depth=true",
     "no-rel-score": "default+min_relative_score=0",
+    "sum-views": "default+relative_score_pool=sum",
     "one-refine-pass": "default+refine_passes=1",
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
@@ -61,10 +62,10 @@ ABLATIONS = {
     "+photo-align": "default+photometric_align=true",
     "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
-    "+median-views": "default+relative_score_pool=median",
     "+support-margin": "default+support_margin=0.0001",
     "+align-depths": "default+align_depths=true",
     "+edge-tol": "default+edge_tolerance=1",
+    "+expand-by-depth": "default+expand_color=false",
 }
 
 

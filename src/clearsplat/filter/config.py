@@ -297,7 +297,8 @@ class FilterConfig:
         a candidate (a surface only the candidate's view sees, smeared over another view's
         render) nor vetoes it (pixels that neither render explains, where that view's own
         distractor or a misplaced surface stands). The score condition (``min_score``) stays
-        pooled over the views, as in the paper.
+        pooled over the views, as in the paper. Default ``"median"``; the paper has no share
+        condition (``min_relative_score=0``), so the pool does not matter there.
     color_explained : float or None
         Reject a candidate whose removal would take away only what the other views already show
         where its view shows it, within that view's misregistration: static content out of
@@ -326,6 +327,15 @@ class FilterConfig:
         condition holds there: the support is judged per patch, and a distractor's patches
         where the other views render little, or at a similar mean depth, drop out of the
         paper's expansion. False: the paper (dilation within the support only).
+    expand_color : bool
+        Whether the expansion may take, beyond the candidate's own Gaussians, Gaussians that
+        the refinement keeps for their colour alone (``refine_color``: a different colour
+        from the static reference while touching its surface). True: the expansion takes
+        every Gaussian the refinement keeps. False: around the candidate's region only those
+        in front of the static reference by depth: the soft edge of a distractor stands in
+        front of what lies behind it, while a static surface beside it that the other views
+        render in another colour (misregistration, an occlusion edge) touches the
+        reference. Without ``refine_color`` both are the same.
     rounds : int or "auto"
         How often the whole procedure runs. Each later round runs it again on the Gaussians
         the earlier rounds kept, so that the distractors found so far no longer stand in the
@@ -412,10 +422,11 @@ class FilterConfig:
     verify_tolerance: int = 0
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
-    relative_score_pool: Literal["sum", "median"] = "sum"
+    relative_score_pool: Literal["sum", "median"] = "median"
     color_explained: float | None = 0.75
     refine_passes: int = 2
     expand_connected: bool = True
+    expand_color: bool = True
     refine_tolerance_depth: bool = False
     edge_tolerance: int = 0
     depth_scale_reach: int = 0
@@ -532,6 +543,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "color_explained": _unit(optional=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
+    "expand_color": FieldSpec("bool"),
     "refine_tolerance_depth": FieldSpec("bool"),
     "edge_tolerance": FieldSpec("integer", 0),
     "depth_scale_reach": FieldSpec("integer", 0),

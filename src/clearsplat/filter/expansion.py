@@ -4,7 +4,8 @@ Paper, "Candidate Verification": a candidate that passes its individual test is 
 hat C_k, the Gaussians of its region dilated by ``dilation`` pixels within the support g_i,
 so that the soft edge of a distractor goes with it. With ``expand_connected`` it also takes
 every 8-connected group of pixels touching the region whose Gaussians stand in front of the
-static reference, within the cells of low similarity.
+static reference, within the cells of low similarity; with ``expand_color=False`` it takes,
+beyond the candidate's own Gaussians, only those in front of the static reference by depth.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
         pixels.
     """
     config, revealing = state.config, refinement.revealing
+    # Beyond the candidate's own Gaussians, only those in front by depth (``expand_color``).
+    by_depth = refinement.in_front if not config.expand_color else None
     grow = config.expand_connected and revealing is not None
     labels: dict = {}
     support: dict = {}      # view -> the support upsampled to pixels, made once
@@ -44,7 +47,10 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
             pixels = grow_connected(pixels, c.view, labels, refinement.front_pixels[c.view],
                                     proposals[c.view], state.tau2)
         g = region_map(c.view, pixels)
-        c.expanded = g if revealing is None else g[revealing[g]]
+        if by_depth is not None:
+            c.expanded = g[by_depth[g] | np.isin(g, c.gaussians)]
+        else:
+            c.expanded = g if revealing is None else g[revealing[g]]
 
 
 def grow_connected(pixels: np.ndarray, view: int, labels: dict, front: np.ndarray, proposal,

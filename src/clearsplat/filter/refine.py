@@ -42,7 +42,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         scale_reach: int = 0, color_grow: float | None = None,
                         workers: int | None = None, members: tuple | None = None,
                         color_distance: np.ndarray | None = None,
-                        scale_depths: list[np.ndarray] | None = None) -> np.ndarray:
+                        scale_depths: list[np.ndarray] | None = None,
+                        by_depth: bool = False) -> np.ndarray | tuple:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -96,6 +97,9 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         measured against (default ``reference_depths``); ``edge_tolerance`` passes the reference
         at each Gaussian's own pixel here, since its nearest surface within the radius is nearer
         along every occlusion edge and would bias both.
+    by_depth : bool
+        Also return the Gaussians that qualify by the depth test alone (without the colour
+        test): ``(qualify, in_front)``, both (N,) bool.
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -126,6 +130,7 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             # "In front" beyond this view's own depth noise, not only beyond the fixed margin.
             view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
         front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
+        in_front = front.copy() if by_depth else None
         if color_threshold is not None and reference_rgbs is not None:
             image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)
@@ -145,15 +150,18 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                 cam = scene.cameras[view]
                 front |= join_touching(front, weak & touching & ~front, pix,
                                        cam.height, cam.width)
-        return front
+        return front, in_front
 
     out = np.zeros(len(scene), dtype=bool)
+    depth_out = np.zeros(len(scene), dtype=bool) if by_depth else None
     # The views are independent (each writes its own Gaussians): one per core.
     fronts = thread_map(view_front, range(scene.num_views), workers=workers)
     for members, front in zip(index.members, fronts):
         if front is not None:
-            out[members] = front
-    return out
+            out[members] = front[0]
+            if by_depth:
+                depth_out[members] = front[1]
+    return (out, depth_out) if by_depth else out
 
 
 def box_distance(image: np.ndarray, lo: np.ndarray, hi: np.ndarray | None,
@@ -306,11 +314,15 @@ class Refinement:
     color_distance : (N,) float32 or None
         Per Gaussian, :func:`color_distances` to the last static reference (with
         ``color_explained``; None otherwise).
+    in_front : (N,) bool or None
+        Of ``revealing``, those that qualify by depth alone, without the colour test (with
+        ``expand_color=False``; None otherwise).
     """
 
     revealing: np.ndarray | None
     front_pixels: list | None = None
     color_distance: np.ndarray | None = None
+    in_front: np.ndarray | None = None
 
 
 def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
@@ -338,27 +350,28 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
         Every candidate's Gaussians C_k before refinement (the proposed Gaussians).
     """
     config = state.config
-    revealing, distances = _revealing(state, renders.excl, images, raw)
+    revealing, distances, in_front = _revealing(state, renders.excl, images, raw)
     front = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
-    return Refinement(revealing, front, distances)
+    return Refinement(revealing, front, distances, in_front)
 
 
 def _revealing(state, excl: list, images: list, raw: list) -> tuple:
-    """(N,) bool: the Gaussians in front of the reference of ``config.refine``; and with
-    ``color_explained``, each Gaussian's colour distance to the last static reference (else
-    None)."""
+    """(N,) bool: the Gaussians in front of the reference of ``config.refine``; with
+    ``color_explained``, each Gaussian's colour distance to the last static reference; with
+    ``expand_color=False``, the first of them by the depth test alone (else None each)."""
     config = state.config
-    if config.refine == "depth":
-        return revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
-                                   margin=config.refine_margin,
-                                   align_scale=config.depth_scale_align,
-                                   scale_reach=config.depth_scale_reach,
-                                   workers=config.num_threads), None
+    if config.refine == "depth":    # no colour test: in front by depth is all there is
+        revealing = revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
+                                        margin=config.refine_margin,
+                                        align_scale=config.depth_scale_align,
+                                        scale_reach=config.depth_scale_reach,
+                                        workers=config.num_threads)
+        return revealing, None, None if config.expand_color else revealing
     if config.refine != "static-depth":
-        return None, None
+        return None, None, None
     proposed = np.zeros(state.n, dtype=bool)
     for g in raw:
         proposed[g] = True
@@ -366,23 +379,27 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
     if radii == "auto":   # each view's measured misregistration with the others
         radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
                  for i in range(state.num_views)]
-    revealing = distances = None
+    revealing = distances = in_front = None
     members = member_depths(state.scene, state.index)     # the same in every pass
     explain = config.color_explained is not None and config.verify
     for k in range(config.refine_passes):
+        last = k == config.refine_passes - 1
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
         depths, rgbs = static_reference(state, excl, proposed)
         reference = _tolerant(state, depths, rgbs, radii)
-        if explain and k == config.refine_passes - 1:   # measured once, read by both tests
+        if explain and last:   # measured once, read by both tests
             _, lo, hi = reference
             distances = color_distances(state.scene, state.index, lo, images, members[1],
                                         reference_rgbs_hi=hi)
         revealing = _in_front(state, reference, images, members, distances,
-                              scale_depths=_scale_depths(state, depths))
+                              scale_depths=_scale_depths(state, depths),
+                              by_depth=last and not config.expand_color)
+        if isinstance(revealing, tuple):
+            revealing, in_front = revealing
         proposed &= revealing
-    return revealing, distances
+    return revealing, distances, in_front
 
 
 def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, list]:
@@ -436,7 +453,7 @@ def _scale_depths(state, reference: list) -> list | None:
 
 def _in_front(state, reference: tuple, images: list, members: tuple,
               distances: np.ndarray | None = None,
-              scale_depths: list | None = None) -> np.ndarray:
+              scale_depths: list | None = None, by_depth: bool = False):
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
     (:func:`_tolerant`)."""
     config = state.config
@@ -449,7 +466,8 @@ def _in_front(state, reference: tuple, images: list, members: tuple,
                                scale_reach=config.depth_scale_reach,
                                color_grow=config.refine_color_grow,
                                workers=config.num_threads, members=members,
-                               color_distance=distances, scale_depths=scale_depths)
+                               color_distance=distances, scale_depths=scale_depths,
+                               by_depth=by_depth)
 
 
 def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
