@@ -568,7 +568,7 @@ runs that agree with each other); `bash benchmarks/gpu_check.sh OUTDIR` runs the
 tests and the profile below in one go on a CUDA machine (it builds a wheel of the checkout
 first and caps each step in time). For scale: the paper reports 3.24 s (DepthSplat, 8 views)
 and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter on those 16 cores takes about
-what it takes on the 2-core VM ("Speed" above: 3.72 s at 8 views, 10.96 s at 16): its
+what it takes on the 2-core VM ("Speed" above: 3.64 s at 8 views, 9.85 s at 16): its
 refinement and the verification's serial NumPy work do not spread over cores (at 8 views
 refinement 1.12 s on 16 cores, 1.14 s on 2).
 

@@ -330,7 +330,8 @@ def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
     of each of its Gaussians (None for a view without any): what every depth test of a round
     reads. Computed in the calling thread: matrix products, left to BLAS as they are, whose
     own threads must not depend on ours."""
-    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2]
+    # The z column copied out, so that the (M, 3) camera coordinates are not held with it.
+    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2].copy()
               if members.size else None for view, members in enumerate(index.members)]
     pixels = [member_pixels(scene, index, view) if members.size else None
               for view, members in enumerate(index.members)]
