@@ -19,8 +19,13 @@ in the first of these steps that lost it:
   regions, before the depth-scale alignment): *behind* it (another view's static content lies
   in front of the distractor at its pixel: misplaced by depth or pose error, or an occlusion
   edge), *within the margin* (in front by less than ``refine_margin``: a distractor on or next
-  to the surface behind it), *in front* (by more: the view's depth-scale alignment or the
-  second refinement pass dropped it);
+  to the surface behind it), *in front* (by more). With ``depth_scale_align`` (the default)
+  the last is split as the first refinement pass judges it, the view's depths divided by their
+  median ratio to that reference: *not at its view's scale* (no longer in front by the
+  margin), *within its view's widened margin* (in front by less than the margin widened to
+  2.5 robust standard deviations of the view's depth ratio), *in front by more, all the same*
+  (by more than that too: the second refinement pass, or the colour test's tolerance, dropped
+  it);
 - *rejected (...)*: in a candidate that a test rejected, by the reason it gives.
 
 Prints the totals, then per input view the distractor Gaussians, those missed and their
@@ -38,7 +43,8 @@ import numpy as np
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians
-from clearsplat.filter.refine import member_pixels
+from clearsplat.filter.refine import _SPREAD_FACTOR, member_pixels
+from clearsplat.filter.robust import view_depth_scales
 from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
 from clearsplat.synth.backbone import distractor_truth
@@ -46,10 +52,14 @@ from clearsplat.synth.realism import parse_realism, realistic_reconstruction
 
 
 def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
-                       margin: float) -> np.ndarray:
+                       margin: float, align_scale: bool = False) -> np.ndarray:
     """For the ``lost`` Gaussians ((N,) bool), where each lies against the static reference of
     its view: R_i^-i without the ``proposed`` Gaussians, R_i^-i where that leaves a hole (as
-    refinement builds it). Returns their step names, in the order of ``np.flatnonzero(lost)``."""
+    refinement builds it). Returns their step names, in the order of ``np.flatnonzero(lost)``.
+
+    With ``align_scale`` (``FilterConfig.depth_scale_align``) those in front by more than
+    ``margin`` are split as the first refinement pass judges them: each view's depths divided
+    by their median ratio to this reference, its margin widened by their spread."""
     names = np.empty(int(lost.sum()), dtype=object)
     where = np.flatnonzero(lost)
     own = scene.view_id
@@ -60,18 +70,33 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
         ref = np.where(static.alpha > 0.1, static.depth, excl.depth).ravel()
         sel = own[where] == v
         g = where[sel]
-        pos = np.searchsorted(index.members[v], g)
-        pix = member_pixels(scene, index, v)[pos]
+        members = index.members[v]
+        pos = np.searchsorted(members, g)
+        pixels = member_pixels(scene, index, v)
+        pix = pixels[pos]
         z = cam.to_camera(scene.gaussians.means[g])[:, 2]
         r = np.where(pix >= 0, ref[np.clip(pix, 0, None)], 0.0)
+        front = np.where(z >= (1 - margin) * r, "refined away: within the margin",
+                         "refined away: in front by more")
+        if align_scale:     # as refinement's first pass: the view's scale and spread
+            z_all = cam.to_camera(scene.gaussians.means[members])[:, 2]
+            r_all = np.where(pixels >= 0, ref[np.clip(pixels, 0, None)], 0.0)
+            scale, spread = view_depth_scales([z_all], [r_all])[0]
+            widened = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+            za = z / scale
+            front = np.where(
+                z >= (1 - margin) * r, "refined away: within the margin",
+                np.where(za >= (1 - margin) * r, "refined away: in front, not at its view's scale",
+                         np.where(za >= (1 - widened) * r,
+                                  "refined away: within its view's widened margin",
+                                  "refined away: in front by more, all the same")))
         names[sel] = np.where(r <= 0, "refined away: reference empty",
-                     np.where(z >= r, "refined away: behind the static reference",
-                     np.where(z >= (1 - margin) * r, "refined away: within the margin",
-                              "refined away: in front by more")))
+                     np.where(z >= r, "refined away: behind the static reference", front))
     return names
 
 
-def _steps(scene, result, truth, min_weight: float, margin: float) -> np.ndarray:
+def _steps(scene, result, truth, min_weight: float, margin: float,
+           align_scale: bool = False) -> np.ndarray:
     """(N,) object: the step that lost each missed distractor Gaussian ('' elsewhere)."""
     n = len(scene)
     index = ViewIndex(scene)
@@ -86,7 +111,7 @@ def _steps(scene, result, truth, min_weight: float, margin: float) -> np.ndarray
     missed = truth & result.keep
     step[missed & ~in_region] = "no region"
     step[missed & in_region] = _against_reference(scene, index, missed & in_region, in_region,
-                                                  margin)
+                                                  margin, align_scale)
     for c in result.candidates:      # the latest test a candidate reached names the loss
         if not c.accepted:
             lost = c.gaussians[missed[c.gaussians]]
@@ -117,7 +142,8 @@ def main(argv=None) -> int:
         scene = reconstruct(world.cameras, world.images, world.depths, seed=args.seed)
         truth = distractor_truth(scene, world)
     result = filter_distractors(scene, config=config)
-    step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin)
+    step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin,
+                  config.depth_scale_align and config.refine == "static-depth")
     missed = truth & result.keep
     print(f"{args.realism} {args.family}, {args.views} views at {w}x{h}, seed {args.seed}, "
           f"{args.config}: recall {1 - missed.sum() / max(truth.sum(), 1):.3f} "
