@@ -76,22 +76,21 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
         pix = pixels[pos]
         z = cam.to_camera(scene.gaussians.means[g])[:, 2]
         r = np.where(pix >= 0, ref[np.clip(pix, 0, None)], 0.0)
-        front = np.where(z >= (1 - margin) * r, "refined away: within the margin",
-                         "refined away: in front by more")
+        front = "refined away: in front by more"
         if align_scale:     # as refinement's first pass: the view's scale and spread
             z_all = cam.to_camera(scene.gaussians.means[members])[:, 2]
             r_all = np.where(pixels >= 0, ref[np.clip(pixels, 0, None)], 0.0)
             scale, spread = view_depth_scales([z_all], [r_all])[0]
             widened = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
             za = z / scale
-            front = np.where(
-                z >= (1 - margin) * r, "refined away: within the margin",
-                np.where(za >= (1 - margin) * r, "refined away: in front, not at its view's scale",
-                         np.where(za >= (1 - widened) * r,
-                                  "refined away: within its view's widened margin",
-                                  "refined away: in front by more, all the same")))
+            front = np.where(za >= (1 - margin) * r,
+                             "refined away: in front, not at its view's scale",
+                             np.where(za >= (1 - widened) * r,
+                                      "refined away: within its view's widened margin",
+                                      "refined away: in front by more, all the same"))
         names[sel] = np.where(r <= 0, "refined away: reference empty",
-                     np.where(z >= r, "refined away: behind the static reference", front))
+                     np.where(z >= r, "refined away: behind the static reference",
+                     np.where(z >= (1 - margin) * r, "refined away: within the margin", front)))
     return names
 
 

@@ -316,7 +316,8 @@ class Refinement:
         ``color_explained``; None otherwise).
     in_front : (N,) bool or None
         Of ``revealing``, those that qualify by depth alone, without the colour test (with
-        ``expand_color=False``; None otherwise).
+        ``expand_color=False`` and ``refine="static-depth"``, the refinement with a colour
+        test; None otherwise).
     """
 
     revealing: np.ndarray | None
@@ -370,7 +371,7 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
                                         align_scale=config.depth_scale_align,
                                         scale_reach=config.depth_scale_reach,
                                         workers=config.num_threads)
-        return revealing, None, None if config.expand_color else revealing
+        return revealing, None, None     # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
         return None, None, None
     proposed = np.zeros(state.n, dtype=bool)
@@ -394,11 +395,9 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
             _, lo, hi = reference
             distances = color_distances(state.scene, state.index, lo, images, members[1],
                                         reference_rgbs_hi=hi)
-        revealing = _in_front(state, reference, images, members, distances,
-                              scale_depths=_scale_depths(state, depths),
-                              by_depth=last and not config.expand_color)
-        if isinstance(revealing, tuple):
-            revealing, in_front = revealing
+        revealing, in_front = _in_front(state, reference, images, members, distances,
+                                        scale_depths=_scale_depths(state, depths),
+                                        by_depth=last and not config.expand_color)
         proposed &= revealing
     return revealing, distances, in_front
 
@@ -454,21 +453,22 @@ def _scale_depths(state, reference: list) -> list | None:
 
 def _in_front(state, reference: tuple, images: list, members: tuple,
               distances: np.ndarray | None = None,
-              scale_depths: list | None = None, by_depth: bool = False):
+              scale_depths: list | None = None, by_depth: bool = False) -> tuple:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
-    (:func:`_tolerant`)."""
+    (:func:`_tolerant`), and with ``by_depth`` those it keeps by depth alone (else None)."""
     config = state.config
     depths, rgb_lo, rgb_hi = reference
-    return revealing_gaussians(state.scene, state.index, depths, margin=config.refine_margin,
-                               reference_rgbs=rgb_lo,
-                               color_threshold=config.refine_color, images=images,
-                               align_scale=config.depth_scale_align,
-                               reference_rgbs_hi=rgb_hi,
-                               scale_reach=config.depth_scale_reach,
-                               color_grow=config.refine_color_grow,
-                               workers=config.num_threads, members=members,
-                               color_distance=distances, scale_depths=scale_depths,
-                               by_depth=by_depth)
+    out = revealing_gaussians(state.scene, state.index, depths, margin=config.refine_margin,
+                              reference_rgbs=rgb_lo,
+                              color_threshold=config.refine_color, images=images,
+                              align_scale=config.depth_scale_align,
+                              reference_rgbs_hi=rgb_hi,
+                              scale_reach=config.depth_scale_reach,
+                              color_grow=config.refine_color_grow,
+                              workers=config.num_threads, members=members,
+                              color_distance=distances, scale_depths=scale_depths,
+                              by_depth=by_depth)
+    return out if by_depth else (out, None)
 
 
 def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
