@@ -28,8 +28,8 @@ in the first of these steps that lost it:
   it);
 - *rejected (...)*: in a candidate that a test rejected, by the reason it gives.
 
-Prints the totals, then per input view the distractor Gaussians, those missed and their
-steps, and with ``--view`` every candidate of that view with its round, scores, verification
+Prints the totals, then per input view the distractor Gaussians, those missed, the view's
+widened margin and their steps, and with ``--view`` every candidate of that view with its round, scores, verification
 views and how many of its Gaussians are distractors. Counts only: the same on any machine.
 """
 
@@ -52,14 +52,16 @@ from clearsplat.synth.realism import parse_realism, realistic_reconstruction
 
 
 def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
-                       margin: float, align_scale: bool = False) -> np.ndarray:
+                       margin: float, align_scale: bool = False,
+                       margins: dict | None = None) -> np.ndarray:
     """For the ``lost`` Gaussians ((N,) bool), where each lies against the static reference of
     its view: R_i^-i without the ``proposed`` Gaussians, R_i^-i where that leaves a hole (as
     refinement builds it). Returns their step names, in the order of ``np.flatnonzero(lost)``.
 
     With ``align_scale`` (``FilterConfig.depth_scale_align``) those in front by more than
     ``margin`` are split as the first refinement pass judges them: each view's depths divided
-    by their median ratio to this reference, its margin widened by their spread."""
+    by their median ratio to this reference, its margin widened by their spread; ``margins``
+    (a dict) then receives each such view's widened margin."""
     names = np.empty(int(lost.sum()), dtype=object)
     where = np.flatnonzero(lost)
     own = scene.view_id
@@ -82,6 +84,8 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
             r_all = np.where(pixels >= 0, ref[np.clip(pixels, 0, None)], 0.0)
             scale, spread = view_depth_scales([z_all], [r_all])[0]
             widened = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+            if margins is not None:
+                margins[int(v)] = widened
             za = z / scale
             front = np.where(za >= (1 - margin) * r,
                              "refined away: in front, not at its view's scale",
@@ -95,7 +99,7 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
 
 
 def _steps(scene, result, truth, min_weight: float, margin: float,
-           align_scale: bool = False) -> np.ndarray:
+           align_scale: bool = False, margins: dict | None = None) -> np.ndarray:
     """(N,) object: the step that lost each missed distractor Gaussian ('' elsewhere)."""
     n = len(scene)
     index = ViewIndex(scene)
@@ -110,7 +114,7 @@ def _steps(scene, result, truth, min_weight: float, margin: float,
     missed = truth & result.keep
     step[missed & ~in_region] = "no region"
     step[missed & in_region] = _against_reference(scene, index, missed & in_region, in_region,
-                                                  margin, align_scale)
+                                                  margin, align_scale, margins)
     for c in result.candidates:      # the latest test a candidate reached names the loss
         if not c.accepted:
             lost = c.gaussians[missed[c.gaussians]]
@@ -141,22 +145,26 @@ def main(argv=None) -> int:
         scene = reconstruct(world.cameras, world.images, world.depths, seed=args.seed)
         truth = distractor_truth(scene, world)
     result = filter_distractors(scene, config=config)
+    margins: dict = {}
     step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin,
-                  config.depth_scale_align and config.refine == "static-depth")
+                  config.depth_scale_align and config.refine == "static-depth", margins)
     missed = truth & result.keep
     print(f"{args.realism} {args.family}, {args.views} views at {w}x{h}, seed {args.seed}, "
           f"{args.config}: recall {1 - missed.sum() / max(truth.sum(), 1):.3f} "
           f"({int(missed.sum()):,} of {int(truth.sum()):,} distractor Gaussians missed)")
     for name, count in Counter(step[missed]).most_common():
         print(f"  {name:44s} {count:7,}")
-    print(f"\n{'view':>4} {'distractor':>10} {'missed':>7}  steps")
+    # margin: the view's margin widened by its depth noise, as the first refinement pass
+    # measures it (views with a distractor Gaussian refined away, with depth_scale_align).
+    print(f"\n{'view':>4} {'distractor':>10} {'missed':>7} {'margin':>7}  steps")
     for v in range(scene.num_views):
         own = scene.view_id == v
         if not (truth & own).any():
             continue
         steps = Counter(step[missed & own])
-        print(f"{v:>4} {int((truth & own).sum()):>10,} {int((missed & own).sum()):>7,}  "
-              + ", ".join(f"{k} {c:,}" for k, c in steps.most_common()))
+        wide = f"{100 * margins[v]:.1f} %" if v in margins else "-"
+        print(f"{v:>4} {int((truth & own).sum()):>10,} {int((missed & own).sum()):>7,} "
+              f"{wide:>7}  " + ", ".join(f"{k} {c:,}" for k, c in steps.most_common()))
     for v in args.view:
         print(f"\ncandidates of view {v}:")
         for c in result.candidates:

@@ -1,4 +1,6 @@
-"""benchmarks/missed_distractors.py: where a missed Gaussian lies against the static reference."""
+"""The diagnostic scripts of benchmarks/: missed_distractors.py (where a missed Gaussian lies
+against the static reference) and real_image_removals.py (what the real-image check removes
+beside the pasted object)."""
 
 from __future__ import annotations
 
@@ -6,16 +8,19 @@ import importlib.util
 import os
 
 import numpy as np
+import pytest
 
+from clearsplat.filter import FilterConfig
 from clearsplat.filter.association import ViewIndex
 from clearsplat.synth import make_world, reconstruct
+from clearsplat.synth.stereo import real_image_check
 
-SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                      "benchmarks", "missed_distractors.py")
+BENCHMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                          "benchmarks")
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("missed_distractors", SCRIPT)
+def _script(name: str = "missed_distractors"):
+    spec = importlib.util.spec_from_file_location(name, os.path.join(BENCHMARKS, name + ".py"))
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -69,9 +74,13 @@ def test_in_front_is_split_as_the_first_refinement_pass_judges_it():
         picks[own[i]] = k
     lost = np.zeros(len(scene), dtype=bool)
     lost[list(picks)] = True
+    margins = {}
     names = _script()._against_reference(scene, ViewIndex(scene), lost,
                                           np.zeros(len(scene), dtype=bool), 0.02,
-                                          align_scale=True)
+                                          align_scale=True, margins=margins)
+    # The view's margin as measured with the three moved Gaussians among its own.
+    _, after = view_depth_scales([cam.to_camera(means[own])[:, 2]], [ref])[0]
+    assert margins == {0: pytest.approx(1.0 - np.exp(-2.5 * after))}
     got = {picks[g]: name for g, name in zip(np.flatnonzero(lost).tolist(), names)}
     assert got == {0: "refined away: in front, not at its view's scale",
                    1: "refined away: within its view's widened margin",
@@ -80,3 +89,18 @@ def test_in_front_is_split_as_the_first_refinement_pass_judges_it():
     plain = _script()._against_reference(scene, ViewIndex(scene), lost,
                                           np.zeros(len(scene), dtype=bool), 0.02)
     assert set(plain) == {"refined away: in front by more"}
+
+
+def test_bands_count_every_other_removed_pixel_by_its_distance_to_the_paste():
+    check = real_image_check(FilterConfig(), height=96)
+    mask = check["info"]["mask"]
+    extra = check["removed_pixels"] & ~mask
+    bands = _script("real_image_removals").removals_beside(check)
+    assert sum(b["count"] for b in bands) == int(extra.sum()) > 0
+    # The distance of each such pixel to the nearest pasted pixel, by brute force.
+    rows, cols = np.nonzero(extra)
+    pr, pc = np.nonzero(mask)
+    d = np.sqrt(((rows[:, None] - pr[None]) ** 2 + (cols[:, None] - pc[None]) ** 2).min(1))
+    for b in bands:
+        assert b["count"] == int(((d > b["from"]) & (d <= b["to"])).sum())
+        assert b["count"] == 0 or 0.0 < b["ratio"] < 2.0
