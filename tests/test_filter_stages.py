@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from clearsplat.features import upsample_nearest
 from clearsplat.filter import FilterConfig
 from clearsplat.filter.masks import dilate
 from clearsplat.filter.proposal import (cell_index_map, connected_regions, patch_means,
@@ -112,6 +113,40 @@ def test_propose_view_upsamples_components_to_pixels():
     assert p.mask2.sum() == 256 and p.mask2[16:, 32:].all()
     assert not (p.mask1 & p.mask2).any()
 
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_regions_hold_cells_and_masks_are_their_union(seed):
+    """Each region makes its pixels from its cells on each read (read-only), and the view's
+    masks are the union of its regions' pixels, on an uneven grid (37x53 pixels, 5x7 cells)."""
+    import pickle
+
+    from clearsplat.filter.result import Candidate
+    rng = np.random.default_rng(seed)
+    sim = rng.random((5, 7)).astype(np.float32)
+    h, w = 37, 53
+    alpha = np.ones((h, w), np.float32)
+    zf = np.ones((h, w), np.float32)
+    ze = np.full((h, w), 2.0, np.float32)
+    p = propose_view(0, sim, alpha, zf, ze, eta=0.5, tau1=0.3, tau2=0.6)
+    assert p.regions
+    union = {1: np.zeros((h, w), bool), 2: np.zeros((h, w), bool)}
+    for r in p.regions:
+        px = r.pixels
+        assert px.shape == (h, w) and not px.flags.writeable
+        np.testing.assert_array_equal(px, upsample_nearest(r.cells, h, w))
+        union[r.range] |= px
+    np.testing.assert_array_equal(p.mask1, union[1])
+    np.testing.assert_array_equal(p.mask2, union[2])
+    # A candidate made from a region reads the same pixels, also after pickling (Ray).
+    c = Candidate(0, 0, p.regions[0].range, p.regions[0], np.zeros(0, np.int64))
+    np.testing.assert_array_equal(c.pixels, p.regions[0].pixels)
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(c)).pixels, c.pixels)
+    # One given as an array keeps that array.
+    arr = np.zeros((h, w), bool)
+    assert Candidate(1, 0, 1, arr, np.zeros(0, np.int64)).pixels is arr
+    with pytest.raises(TypeError):
+        Candidate(2, 0, 1)
 
 def test_score_closed_form():
     # Two pixels: removing the candidate fixes one (error 0.6 -> 0) and harms another.

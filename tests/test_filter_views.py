@@ -86,6 +86,12 @@ def test_prepared_views_keep_the_first_within_budget(street):
     if unseen.size:
         assert not views.sees_any(3, unseen)
     assert not views.sees_any(3, np.empty(0, np.int64))
+    # release() drops the views and keeps the bits; release(bits=True) drops both.
+    views.release()
+    assert views.held_bytes == 0 and views.sees_any(3, g[:5])
+    views.release(bits=True)
+    with pytest.raises(RuntimeError, match="released"):
+        views.sees_any(3, g[:5])
 
 
 @pytest.mark.parametrize("bad", [0, -1.0, float("inf"), True, "2"])

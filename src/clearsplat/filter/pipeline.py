@@ -165,7 +165,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     refinement = refine(state, renders, images, raw)                     # in front only
     state.lap("refine")
     revealing = refinement.revealing
-    candidates = [Candidate(k, r.view, r.range, r.pixels, g if revealing is None
+    # Each candidate reads its pixels from its region (made from the grid cells when read).
+    candidates = [Candidate(k, r.view, r.range, r, g if revealing is None
                             else g[revealing[g]]) for k, (r, g) in enumerate(zip(regions, raw))]
     if config.verify_mask != "proposals":
         for p in proposals:     # pixels verification leaves out (``verify_mask``)

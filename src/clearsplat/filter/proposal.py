@@ -36,14 +36,23 @@ class Region:
         1 for the first similarity range (s < tau1), 2 for the second [r_k].
     cells : (h, w) bool
         The component on the feature grid.
+    shape : (H, W)
+        The image size.
     pixels : (H, W) bool
-        The component upsampled to the image (nearest neighbour) [M_k].
+        The component upsampled to the image (nearest neighbour) [M_k]: made from ``cells``
+        on each read (read-only), so that a region holds 1/256 of the image's bytes.
     """
 
     view: int
     range: int
     cells: np.ndarray
-    pixels: np.ndarray
+    shape: tuple
+
+    @property
+    def pixels(self) -> np.ndarray:
+        out = upsample_nearest(self.cells, *self.shape)
+        out.flags.writeable = False
+        return out
 
 
 @dataclass(eq=False)
@@ -182,13 +191,11 @@ def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
                              second_range=second_range, single_threshold=single_threshold)
     out = ViewProposal(view=view, similarity=similarity.astype(np.float32), support=support,
                        ranges=ranges)
-    masks = {1: np.zeros((height, width), bool), 2: np.zeros((height, width), bool)}
     for r in (1, 2):
-        for cells in connected_regions(ranges, r):
-            pixels = upsample_nearest(cells, height, width)
-            out.regions.append(Region(view=view, range=r, cells=cells, pixels=pixels))
-            masks[r] |= pixels
-    out.mask1, out.mask2 = masks[1], masks[2]
+        out.regions.extend(Region(view=view, range=r, cells=cells, shape=(height, width))
+                           for cells in connected_regions(ranges, r))
+    # The union of a range's components is the range.
+    out.mask1, out.mask2 = (upsample_nearest(ranges == r, height, width) for r in (1, 2))
     return out
 
 

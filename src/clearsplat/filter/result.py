@@ -18,6 +18,25 @@ from .config import FilterConfig
 __all__ = ["Candidate", "FilterResult"]
 
 
+class _Mask:
+    """The descriptor of :attr:`Candidate.pixels`. It holds the (H, W) bool array it is given,
+    or an object whose ``pixels`` property makes that array on each read (a proposal's
+    :class:`~clearsplat.filter.proposal.Region`, from its feature-grid cells: 1/256 of the
+    memory at 16-pixel cells, which a dense capture's hundreds of candidates need)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self._slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:     # read on the class: a field without a default
+            raise AttributeError(self._slot[1:])
+        value = obj.__dict__[self._slot]
+        return value if isinstance(value, np.ndarray) else value.pixels
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self._slot] = value
+
+
 @dataclass(eq=False)
 class Candidate:
     """One candidate region and what verification made of it.
@@ -30,7 +49,8 @@ class Candidate:
     range : int
         Similarity range, 1 or 2.
     pixels : (H, W) bool
-        The region [M_k].
+        The region [M_k]. A filter run's candidates hold it as the proposal's grid cells and
+        make the array on each read (read-only: a copy to change it).
     gaussians : (M,) int64
         Gaussians the region maps to [C_k].
     expanded : (M',) int64 or None
@@ -54,7 +74,7 @@ class Candidate:
     index: int
     view: int
     range: int
-    pixels: np.ndarray
+    pixels: np.ndarray = _Mask()
     gaussians: np.ndarray
     expanded: np.ndarray | None = None
     verify_views: list = field(default_factory=list)

@@ -37,7 +37,8 @@ class Carry:
         return self.views.held_bytes + renders
 
     def release(self) -> None:
-        self.views.release()
+        """Drop everything held: the next round asks these views nothing more."""
+        self.views.release(bits=True)
         self.full.clear()
         self.excl.clear()
 
