@@ -98,3 +98,37 @@ def test_prepared_views_keep_the_first_within_budget(street):
 def test_view_memory_must_be_positive(bad):
     with pytest.raises(ClearsplatError, match="view_memory"):
         FilterConfig(view_memory=bad)
+
+
+def test_later_rounds_prepare_from_the_whole_scene(street, extractor, monkeypatch):
+    """Under a budget that holds one view, the second round prepares its views afresh: from
+    the whole scene, restricted to the kept Gaussians, with the output of views carried over."""
+    import sys
+    render = sys.modules["clearsplat.render"]   # the package (its name is also a function)
+    sizes = []
+
+    def counting(scene, *args, **kwargs):
+        sizes.append(len(scene))
+        return prepare(scene, *args, **kwargs)
+
+    monkeypatch.setattr(render, "prepare", counting)
+    a = filter_distractors(street, config=FilterConfig(view_memory=1e-9, rounds=2),
+                           extractor=extractor)
+    monkeypatch.undo()
+    assert max(c.round for c in a.candidates) == 2
+    assert len(sizes) > 2 * street.num_views and set(sizes) == {len(street)}
+    _same(a, filter_distractors(street, config=FilterConfig(view_memory=None, rounds=2),
+                                extractor=extractor))
+
+
+def test_kept_gaussians_read_as_the_subset(street):
+    from clearsplat.filter.rounds import KeptGaussians, kept_scene
+    kept = np.flatnonzero(np.random.default_rng(0).random(len(street)) < 0.7)
+    light, full = kept_scene(street, kept, light=True), kept_scene(street, kept)
+    assert isinstance(light.gaussians, KeptGaussians) and len(light) == len(full) == kept.size
+    for name in ("means", "scales", "quats", "opacities", "sh"):
+        np.testing.assert_array_equal(getattr(light.gaussians, name),
+                                      getattr(full.gaussians, name))
+    np.testing.assert_array_equal(light.view_id, full.view_id)
+    np.testing.assert_array_equal(light.pixel_id, full.pixel_id)
+    assert light.gaussians.sh_degree == full.gaussians.sh_degree and not light.gaussians.extra

@@ -115,13 +115,20 @@ class NativeBackend(FilterBackend):
         threads = self.config.num_threads
         touched: dict = {}      # view -> tiles the previous round's removals touched there
 
+        source = None if previous is None else previous.source
+
         def make(i: int):
             old = None if previous is None else previous.views.take(i)
-            if old is None:
-                return prepare(scene, scene.cameras[i], keep=held_mask(scene, hoods, i, index),
-                               num_threads=threads)
-            touched[i] = old.tiles_touched(~previous.keep)
-            return old.restrict(previous.keep)
+            if old is not None:
+                touched[i] = old.tiles_touched(~previous.keep)
+                return old.restrict(previous.keep)
+            if source is not None:      # from the whole scene: ``scene`` holds no copy
+                whole, kept = source
+                held = kept if hoods is None else kept & held_mask(whole, hoods, i)
+                return prepare(whole, scene.cameras[i], keep=held,
+                               num_threads=threads).restrict(kept)
+            return prepare(scene, scene.cameras[i], keep=held_mask(scene, hoods, i, index),
+                           num_threads=threads)
 
         views = PreparedViews(len(scene), scene.cameras, make, budget=self.budget,
                               skip_unseen=self.incremental)

@@ -19,7 +19,6 @@ next round                             :mod:`.rounds`
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
 import numpy as np
@@ -38,7 +37,7 @@ from .refine import explained_candidates, refine
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
-from .rounds import Carry, in_round, merge_round
+from .rounds import Carry, in_round, kept_scene, merge_round
 from .state import Progress, RoundState
 from .verify import individual_tests, make_verifier, range_masks, second_range_tests
 
@@ -106,8 +105,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             if kept.size == n:          # nothing removed: a new round would find the same
                 break
             previous, carry = carry, None
-            later, carry = run_round(_kept_scene(scene, kept), config, extractor, backend,
-                                     in_round(report, round_), previous=previous,
+            light = previous is not None    # views made afresh come from the whole scene
+            if light:
+                previous.source = (scene, result.keep.copy())
+            later, carry = run_round(kept_scene(scene, kept, light=light), config, extractor,
+                                     backend, in_round(report, round_), previous=previous,
                                      hold=round_ < rounds, plan=plan)
             previous = None             # spent (the round released it)
             merge_round(result, later, kept, round_)
@@ -118,14 +120,6 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             if c is not None:
                 c.release()
     return result
-
-
-def _kept_scene(scene: Scene, kept: np.ndarray) -> Scene:
-    """The scene a later round runs on: the ``kept`` Gaussians, without the per-Gaussian
-    attributes the filter never reads (``Gaussians.extra``: a PLY's normals or features would
-    be copied for nothing)."""
-    bare = dataclasses.replace(scene.gaussians, extra={})     # shares the arrays
-    return dataclasses.replace(scene, gaussians=bare).subset(kept)
 
 
 def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Progress, *,

@@ -10,13 +10,14 @@ the rounds before kept.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..scene import Gaussians, Scene
 from .result import FilterResult
 
-__all__ = ["Carry", "in_round", "merge_round"]
+__all__ = ["Carry", "KeptGaussians", "in_round", "kept_scene", "merge_round"]
 
 
 @dataclass
@@ -24,12 +25,18 @@ class Carry:
     """What a round hands to the next: its prepared views (those still held), its renders
     R_i and R_i^-i, and which of its Gaussians it kept ((N,) bool). The next round, on the
     kept Gaussians, takes its views from these (``PreparedView.restrict``) and composites again
-    only the tiles that the removed Gaussians touched."""
+    only the tiles that the removed Gaussians touched.
+
+    ``source``: the whole scene of the first round and the (N0,) bool mask of the Gaussians
+    the next round runs on, where that round's scene is :func:`kept_scene` with ``light``: the
+    native backend then projects the views it prepares afresh from the whole scene and
+    restricts them (``PreparedView.restrict``), the same arrays bit for bit."""
 
     views: object
     full: list
     excl: list
     keep: np.ndarray
+    source: tuple | None = None
 
     def nbytes(self) -> int:
         """Bytes held: the views still kept and the renders not yet dropped."""
@@ -41,6 +48,41 @@ class Carry:
         self.views.release(bits=True)
         self.full.clear()
         self.excl.clear()
+
+
+class KeptGaussians(Gaussians):
+    """A later round's Gaussians: ``whole`` at the indices ``kept``, with ``means`` and
+    ``opacities`` copied and ``scales``, ``quats`` and ``sh`` gathered from ``whole`` on each
+    read. The native backend prepares a later round's views from the whole scene
+    (:attr:`Carry.source`), so a round does not hold a second copy of what only projection
+    reads: 0.29 GB at 64 views of 7.3 M Gaussians with SH degree 0, five times that at
+    degree 3. ``extra`` is empty (the filter never reads it)."""
+
+    def __init__(self, whole: Gaussians, kept: np.ndarray):
+        self._whole, self._kept = whole, np.asarray(kept)
+        self.means = whole.means[self._kept]
+        self.opacities = whole.opacities[self._kept]
+        self.extra = {}
+
+    scales = property(lambda self: self._whole.scales[self._kept])
+    quats = property(lambda self: self._whole.quats[self._kept])
+    sh = property(lambda self: self._whole.sh[self._kept])
+
+    @property
+    def sh_degree(self) -> int:
+        return self._whole.sh_degree
+
+
+def kept_scene(scene: Scene, kept: np.ndarray, *, light: bool = False) -> Scene:
+    """The scene a later round runs on: the Gaussians of ``scene`` at the indices ``kept``
+    (ascending), without the per-Gaussian attributes the filter never reads
+    (``Gaussians.extra``: a PLY's normals or features would be copied for nothing). With
+    ``light`` its Gaussians are :class:`KeptGaussians`."""
+    g = scene.gaussians
+    gaussians = (KeptGaussians(g, kept) if light
+                 else replace(g, extra={}).subset(kept))      # replace shares the arrays
+    return Scene(gaussians, scene.view_id[kept], scene.pixel_id[kept], scene.cameras,
+                 scene.images, scene.render_settings)
 
 
 def in_round(report, round_: int):
