@@ -43,7 +43,7 @@ import numpy as np
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians
-from clearsplat.filter.refine import _SPREAD_FACTOR, member_pixels
+from clearsplat.filter.refine import member_pixels, widened_margin
 from clearsplat.filter.robust import view_depth_scales
 from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
@@ -83,7 +83,7 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
             z_all = cam.to_camera(scene.gaussians.means[members])[:, 2]
             r_all = np.where(pixels >= 0, ref[np.clip(pixels, 0, None)], 0.0)
             scale, spread = view_depth_scales([z_all], [r_all])[0]
-            widened = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+            widened = widened_margin(margin, spread)
             if margins is not None:
                 margins[int(v)] = widened
             za = z / scale

@@ -114,7 +114,6 @@ def test_propose_view_upsamples_components_to_pixels():
     assert not (p.mask1 & p.mask2).any()
 
 
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_regions_hold_cells_and_masks_are_their_union(seed):
     """Each region makes its pixels from its cells on each read (read-only), and the view's
@@ -147,6 +146,7 @@ def test_regions_hold_cells_and_masks_are_their_union(seed):
     assert Candidate(1, 0, 1, arr, np.zeros(0, np.int64)).pixels is arr
     with pytest.raises(TypeError):
         Candidate(2, 0, 1)
+
 
 def test_score_closed_form():
     # Two pixels: removing the candidate fixes one (error 0.6 -> 0) and harms another.

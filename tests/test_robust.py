@@ -251,6 +251,9 @@ def test_median_pool_neither_carried_nor_vetoed_by_one_view():
     for p in [heavy] + faint:
         total.add(p)
     assert passes(total, median, [heavy] + faint)
+    # The caller's pooled terms (the same sum, in the same order) give the same share.
+    assert median_relative_score([heavy] + faint, pooled=total) == \
+        median_relative_score([heavy] + faint)
     # Two voters, one against (share -0.5 on a third of the weight): pooled, not their mean.
     against = Partial(-0.5 * 15.0, 15.0, 15.0)
     assert median_relative_score([heavy, against]) == pytest.approx((21.0 - 7.5) / 45.0)

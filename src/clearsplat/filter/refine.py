@@ -20,7 +20,8 @@ from .association import ViewIndex
 from .masks import label8, touched_components
 from .robust import misregistration, tolerant_reference
 
-__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "join_touching",
+__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
+           "join_touching",
            "member_depths", "member_pixels", "pixels_of", "box_distance", "color_distances",
            "explained_candidates"]
 
@@ -123,12 +124,11 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             scale, spread = local_depth_scales(z, measured, pix, cam.height, cam.width,
                                                reach=scale_reach)
             z = z / scale
-            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+            view_margin = widened_margin(margin, spread)
         elif align_scale:
             scale, spread = view_depth_scales([z], [measured])[0]
             z = z / scale
-            # "In front" beyond this view's own depth noise, not only beyond the fixed margin.
-            view_margin = max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+            view_margin = widened_margin(margin, spread)
         front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
         in_front = front.copy() if by_depth else None
         if color_threshold is not None and reference_rgbs is not None:
@@ -162,6 +162,13 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             if by_depth:
                 depth_out[members] = front[1]
     return (out, depth_out) if by_depth else out
+
+
+def widened_margin(margin: float, spread: float) -> float:
+    """The relative depth gap that counts as "in front" in a view whose depth ratio to the
+    reference spreads by ``spread`` (robust standard deviation of its log): beyond the view's
+    own depth noise (2.5 robust SD), not only beyond ``margin``."""
+    return max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
 
 
 def box_distance(image: np.ndarray, lo: np.ndarray, hi: np.ndarray | None,

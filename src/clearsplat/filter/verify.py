@@ -304,7 +304,7 @@ def passes(total: Partial, config, per_view: list | None = None) -> bool:
     if config.min_relative_score <= 0:
         return True
     if per_view is not None and config.relative_score_pool == "median":
-        return median_relative_score(per_view) > config.min_relative_score
+        return median_relative_score(per_view, pooled=total) > config.min_relative_score
     return total.relative_score > config.min_relative_score
 
 
@@ -314,20 +314,22 @@ def passes(total: Partial, config, per_view: list | None = None) -> bool:
 _MEDIAN_MIN_WEIGHT = 0.05
 
 
-def median_relative_score(per_view: list) -> float:
+def median_relative_score(per_view: list, pooled: Partial | None = None) -> float:
     """The median of :attr:`Partial.relative_score` over the views whose terms carry weight:
     at least a twentieth of the weight (``den``) of the view that carries most. A median
     outvotes one view only among three or more: with one or two such views, the share pooled
-    over every view (0 when none carries any weight)."""
+    over every view (0 when none carries any weight). ``pooled``: the sum of ``per_view``
+    where the caller has it (otherwise summed here)."""
     top = max((p.den for p in per_view), default=0.0)
     if not top > 0:
         return 0.0
     shares = [p.relative_score for p in per_view if p.den >= _MEDIAN_MIN_WEIGHT * top]
     if len(shares) < 3:
-        total = Partial()
-        for p in per_view:
-            total.add(p)
-        return total.relative_score
+        if pooled is None:
+            pooled = Partial()
+            for p in per_view:
+                pooled.add(p)
+        return pooled.relative_score
     return float(np.median(shares))
 
 

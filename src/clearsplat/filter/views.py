@@ -139,8 +139,8 @@ class PreparedViews:
         return self._kept.pop(i, None)
 
     def release(self, *, bits: bool = False) -> None:
-        """Drop every kept view; with ``bits`` also the visibility bits (N / 8 bytes per view,
-        58 MB at 64 views of 7.3 M Gaussians), once nothing asks :meth:`sees` any more."""
+        """Drop every kept view; with ``bits`` also the visibility bits (N / 8 bytes per view),
+        once nothing asks :meth:`sees` any more."""
         self._kept.clear()
         if bits:
             self._seen = [None] * len(self.cameras)
