@@ -5,6 +5,7 @@ Usage::
 
     python benchmarks/cli_speed.py                       # 16 views at 192x128 (393,216 Gaussians)
     python benchmarks/cli_speed.py --views 8 --repeats 5
+    python benchmarks/cli_speed.py --preset fast
 
 Builds a stand-in object scene once into a temporary folder (not timed), runs the
 ``clearsplat`` command on it ``--repeats`` times (each a fresh process, output replaced with
@@ -45,6 +46,8 @@ def main(argv=None) -> int:
     p.add_argument("--family", default="object")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--keep", help="build the bundle in (and keep) this folder")
+    p.add_argument("--preset", default="default",
+                   help="passed on to clearsplat filter (default: default)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a filter option, passed on to clearsplat filter (repeatable)")
     args = p.parse_args(argv)
@@ -65,13 +68,14 @@ def main(argv=None) -> int:
     _timed([sys.executable, "-c", "import clearsplat.cli"], env)      # warm the bytecode cache
     imports = [_timed([sys.executable, "-c", "import clearsplat.cli"], env)
                for _ in range(args.repeats)]
-    options = [a for kv in args.set for a in ("--set", kv)]
+    options = ["--preset", args.preset] + [a for kv in args.set for a in ("--set", kv)]
     runs = [_timed(exe + ["filter", bundle, "--out", out, "--force"] + options, env)
             for _ in range(args.repeats)]
     walls = [r[0] for r in runs]
     print(f"clearsplat filter, whole process — {args.family}, {args.views} views at {w}x{h}, "
           f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}, load "
           f"{os.getloadavg()[0]:.1f}; {args.repeats} runs"
+          + (f"; preset {args.preset}" if args.preset != "default" else "")
           + (f"; {' '.join(args.set)}" if args.set else ""))
     print(f"  wall s: median {statistics.median(walls):.2f}, range {min(walls):.2f}-"
           f"{max(walls):.2f}; CPU s (all threads): median "

@@ -7,6 +7,7 @@ Usage::
     python benchmarks/filter_speed.py --views 8,16,32 --resolution 128x224 --family street
     python benchmarks/filter_speed.py --views 64 --repeats 1 --full-repeats 0   # dense capture
     python benchmarks/filter_speed.py --device cuda --views 4,8,16     # GPU, against the CPU
+    python benchmarks/filter_speed.py --views 8,16 --preset fast      # one round, 4 neighbours
 
 Each view count runs in a fresh subprocess so that its peak resident memory is its own.
 Times are medians over ``--repeats`` runs of the default filter (incremental verification) and
@@ -43,7 +44,7 @@ import time
 
 def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
           family: str, seed: int, view_memory: float | None, threads: int | None,
-          device: str = "cpu", overrides: tuple = ()) -> dict:
+          device: str = "cpu", overrides: tuple = (), preset: str = "default") -> dict:
     import numpy as np
 
     from clearsplat._memory import estimate_filter_memory
@@ -58,9 +59,10 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
     t_recon = time.perf_counter() - t0
     extractor = get_extractor("local")
     options = {f.name for f in dataclasses.fields(FilterConfig)}
-    cfg = FilterConfig(num_threads=threads,
-                       **({"view_memory": view_memory} if "view_memory" in options else {}),
-                       **({"device": device} if device != "cpu" else {}))
+    cfg = FilterConfig.preset(preset).replace(
+        num_threads=threads,
+        **({"view_memory": view_memory} if "view_memory" in options else {}),
+        **({"device": device} if device != "cpu" else {}))
     for item in overrides:   # --set KEY=VALUE, read as `clearsplat bench --config` reads it
         key, _, value = item.partition("=")
         cfg = cfg.replace(**{key: parse_value(value)})
@@ -146,6 +148,8 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu",
                    help="FilterConfig.device, e.g. cuda (then the --full-repeats runs are the "
                         "CPU filter, and 'same output' compares the two)")
+    p.add_argument("--preset", default="default",
+                   help="the FilterConfig preset every run starts from (default: default)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a FilterConfig field for every run, VALUE as in `clearsplat bench --config` (e.g. prune_views=false)")
     p.add_argument("--json", help="also write the rows to this file")
@@ -155,7 +159,8 @@ def main(argv=None) -> int:
     view_memory = None if args.view_memory.lower() == "none" else float(args.view_memory)
     if args._child:
         row = _case(int(args._child), h, w, args.repeats, args.full_repeats, args.family,
-                    args.seed, view_memory, args.threads, args.device, tuple(args.set))
+                    args.seed, view_memory, args.threads, args.device, tuple(args.set),
+                    args.preset)
         print(json.dumps(row))
         return 0
     rows = []
@@ -163,7 +168,8 @@ def main(argv=None) -> int:
         cmd = [sys.executable, os.path.abspath(__file__), "--_child", str(v),
                "--resolution", args.resolution, "--repeats", str(args.repeats),
                "--full-repeats", str(args.full_repeats), "--family", args.family,
-               "--seed", str(args.seed), "--view-memory", args.view_memory]
+               "--seed", str(args.seed), "--view-memory", args.view_memory,
+               "--preset", args.preset]
         if args.threads:
             cmd += ["--threads", str(args.threads)]
         if args.device != "cpu":
@@ -181,6 +187,7 @@ def main(argv=None) -> int:
           f"{os.getloadavg()[0]:.1f}; medians of {args.repeats} (incremental) / "
           f"{args.full_repeats} ({'full' if args.device == 'cpu' else 'CPU'}) runs; "
           f"view_memory {args.view_memory} GB; device {args.device}"
+          + (f"; preset {args.preset}" if args.preset != "default" else "")
           + "".join(f"; {item}" for item in args.set))
     hdr = (f"{'views':>5} {'Gaussians':>10} {'cands':>6} {'proposal s':>10} {'verify s':>9} "
            f"{'total s':>8} {'min-max':>11} {'first':>6} {'full verify s':>13} {'speedup':>8} {'peak RSS GB':>11} "

@@ -271,3 +271,35 @@ def test_own_masks_are_built_when_asked_and_equal_the_gather(street):
                     own[i][0] = True
             with pytest.raises(IndexError):
                 own[v]
+
+
+def test_fast_preset_is_the_default_up_to_five_views():
+    """``fast`` bounds each camera to four neighbours and one round: with five views every
+    other view is a neighbour and the default runs one round there, so the output is the
+    default's, bit for bit."""
+    world = make_world("street", num_views=5, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "plain", seed=4)
+    ex = get_extractor("local")
+    default = filter_distractors(scene, config=FilterConfig(), extractor=ex)
+    fast = filter_distractors(scene, config=FilterConfig.preset("fast"), extractor=ex)
+    np.testing.assert_array_equal(fast.keep, default.keep)
+    assert [c.record() for c in fast.candidates] == [c.record() for c in default.candidates]
+
+
+def test_fast_preset_runs_one_round_over_bounded_neighbourhoods(street):
+    scene, truth = street
+    ex = get_extractor("local")
+    fast = FilterConfig.preset("fast")
+    assert fast.describe() == "preset 'fast'"
+    res = filter_distractors(scene, config=fast, extractor=ex)
+    default = filter_distractors(scene, config=FilterConfig(), extractor=ex)
+    assert {c.round for c in res.candidates} == {1}
+    assert {c.round for c in default.candidates} == {1, 2}   # the default runs two here
+    # the renders of a camera hold its four neighbours and the views it verifies, not all
+    plan = view_plan(scene, neighbours=4, verify_views="mutual", num_verify_views=3)
+    assert any(h.sum() < scene.num_views for h in plan.hoods)
+    for c in res.candidates:
+        assert c.verify_views == plan.verifiers[c.view]
+        assert all(plan.hoods[j][c.view] for j in c.verify_views)
+    assert res.removed[truth].mean() > 0.5
+    assert res.removed[~truth].mean() < 0.02

@@ -464,7 +464,10 @@ class FilterConfig:
         (DINOv3 features, individual test from the full representation), which needs
         ``pip install "clearsplat[dino]"`` and a local checkpoint
         (``FilterConfig.preset("paper", checkpoint="/path/to/dinov3")``); ``"paper-local"`` is
-        the paper's procedure with the weight-free ``"local"`` features.
+        the paper's procedure with the weight-free ``"local"`` features. ``"exact"`` is the
+        default without its approximations for dense captures (every view in every camera's
+        renders); ``"fast"`` trades recall for time (one round, four neighbours per camera;
+        ``docs/method.md``, "The fast preset").
         """
         if name not in PRESETS:
             raise ClearsplatError(f"unknown preset {name!r}; choose one of "
@@ -586,6 +589,9 @@ PRESETS = {
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").
     "exact": FilterConfig(neighbours=None, verify_views="centres"),
+    # Faster than the default, finding less: one round, and each camera's renders hold the
+    # four views that share the most of its field of view (docs/method.md, "The fast preset").
+    "fast": FilterConfig(rounds=1, neighbours=4),
 }
 
 
