@@ -1,15 +1,15 @@
 #!/bin/bash
 # The GPU checks of docs/benchmarks.md ("On a GPU") in one go, on a machine with CUDA and
 # PyTorch: build a wheel of this checkout, then the CUDA tests, the decisions against the CPU
-# filter, the speed table, the 32-view street row and the profile, each step capped in time.
+# filter, the speed table, the fast preset's rows, the 32-view street row and the profile, each step capped in time.
 #
 #     bash benchmarks/gpu_check.sh [OUTDIR] [SECONDS]
 #
 # OUTDIR (default gpu-out) receives the wheel, each step's full output and log.txt; SECONDS
-# (default 450) is the time for all the steps together. The last lines of each step are
+# (default 520) is the time for all the steps together. The last lines of each step are
 # printed as it ends.
 set -u
-out=${1:-gpu-out}; deadline=${2:-450}
+out=${1:-gpu-out}; deadline=${2:-520}
 mkdir -p "$out" && out=$(cd "$out" && pwd)
 export PYTHONUNBUFFERED=1
 t0=$(date +%s)
@@ -38,6 +38,8 @@ step tests 90 6 python3 -m pytest -q -p no:cacheprovider tests/test_torch_backen
 step decisions 80 12 python3 benchmarks/gpu_decisions.py --views 4,8 --set backend=torch
 step speed_object 170 30 python3 benchmarks/filter_speed.py --device cuda --set backend=torch \
     --views 4,8,16 --repeats 2 --full-repeats 1
+step speed_fast 70 12 python3 benchmarks/filter_speed.py --device cuda --set backend=torch \
+    --preset fast --views 8,16 --repeats 1 --full-repeats 1
 step speed_street 120 12 python3 benchmarks/filter_speed.py --device cuda --set backend=torch \
     --views 32 --family street --repeats 1 --full-repeats 1
 step profile 80 40 python3 benchmarks/gpu_profile.py --views 4 --rows 12

@@ -23,7 +23,8 @@ Sections measured (each runs the commands printed above its tables, as subproces
 The sections that measure nothing (dense captures, the GPU, real datasets) are fixed text,
 written on every run. Each section's block on the page lies between ``<!-- report:NAME -->``
 and ``<!-- /report:NAME -->``; a run with ``--only`` replaces those blocks and keeps the
-others of the existing page as they are. Raw outputs go to ``--work`` (default
+others of the existing page as they are. Text written by hand between a block's end and the
+next block stays where it is on every run. Raw outputs go to ``--work`` (default
 ``out/report``); ``--reuse`` takes a step's output from there instead of running it again when
 the same command wrote it (the command is stored beside it).
 """
@@ -547,40 +548,43 @@ every image, so little can be pruned.
     "gpu": """## On a GPU
 
 Measured on 2026-11-26 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
-driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.3.6 built
-there as a wheel; default config (two rounds), object scenes at 256x448 (street at 32 views).
-That machine is not at hand, so this page's command does not regenerate these figures.
+driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.4.0 built
+there as a wheel; object scenes at 256x448 (street at 32 views), the default config (two rounds)
+and the `fast` preset. That machine is not at hand, so this page's command does not regenerate
+these figures.
 
 | views | torch backend on the H200, total s | its verification s | GPU peak GB | native CPU filter, the same 16 cores: total s / verification s | same decisions |
 |---|---|---|---|---|---|
-| 4 | 1.72 | 0.56 | 0.97 | 0.85 / 0.26 | yes |
-| 8 | 8.38 | 2.61 | 1.76 | 3.46 / 1.16 | no: 197 Gaussians differ (17,831 removed against 17,638) |
-| 16 | 25.24 | 6.13 | 4.37 | 8.43 / 2.48 | no |
-| 32 (street) | 40.52 | 13.08 | 5.64 | — / 5.81 | no |
+| 4 | 1.97 | 0.63 | 0.97 | 0.85 / 0.29 | yes |
+| 8 | 9.39 | 3.00 | 1.76 | 3.86 / 1.44 | no: 197 Gaussians differ (17,820 removed against 17,627) |
+| 16 | 28.71 | 7.17 | 4.37 | 9.01 / 3.23 | no |
+| 32 (street) | 40.90 | 13.59 | 5.64 | 16.03 / 6.42 | no |
+| 8, `fast` | 4.35 | 1.09 | 1.52 | 1.54 / 0.75 | no |
+| 16, `fast` | 8.00 | 2.49 | 2.36 | 3.40 / 1.40 | yes |
 
 Commands: `python benchmarks/filter_speed.py --device cuda --set backend=torch --views 4,8,16
 --repeats 2 --full-repeats 1` (medians of 2 GPU runs; its second set of runs is the native CPU
-filter, whose verification seconds give the 32-view row's fifth column), the same with
-`--views 32 --family street --repeats 1`, `python benchmarks/filter_speed.py --views 8,16
---repeats 2 --full-repeats 0` (the native filter's 8- and 16-view totals) and `python
-benchmarks/gpu_decisions.py --views 4,8 --set backend=torch` (the 4-view CPU total, and two GPU
-runs that agree with each other); `bash benchmarks/gpu_check.sh OUTDIR` runs them, the CUDA
-tests and the profile below in one go on a CUDA machine (it builds a wheel of the checkout
-first and caps each step in time). For scale: the paper reports 3.24 s (DepthSplat, 8 views)
-and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter on those 16 cores takes about
-what it takes on the 2-core VM ("Speed" above: 3.64 s at 8 views, 9.85 s at 16): its
-refinement and the verification's serial NumPy work do not spread over cores (at 8 views
-refinement 1.12 s on 16 cores, 1.14 s on 2).
+filter, whose verification seconds give the fifth column's second figure), the same with
+`--views 32 --family street --repeats 1` and with `--preset fast --views 8,16 --repeats 1`;
+`python benchmarks/filter_speed.py --views 8,16 --repeats 2 --full-repeats 0` (the native
+filter's totals; with `--preset fast`, and with `--views 32 --family street --repeats 1`) and
+`python benchmarks/gpu_decisions.py --views 4,8 --set backend=torch` (the 4-view CPU total, and
+two GPU runs that agree with each other). `bash benchmarks/gpu_check.sh OUTDIR` runs the GPU
+steps, the CUDA tests and the profile below in one go on a CUDA machine (it builds a wheel of
+the checkout first and caps each step in time; 344 s there). For scale: the paper reports
+3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter
+on those 16 cores takes about what it takes on the 2-core VM ("Speed" above): its refinement
+and the verification's serial NumPy work do not spread over cores. The first GPU run of a
+process also pays for CUDA's start: 6.42 s at 4 views against 1.36 s for the next.
 
 **Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 4` (same
-machine): 2.39 s under the profiler, of which the GPU is busy 0.34 s (14 %); the filter issues
-105,645 torch ops, 44,066 kernel launches (0.36 s of host time in the launch calls alone), 2,801
+machine): 1.97 s under the profiler, of which the GPU is busy 0.34 s (17 %); the filter issues
+105,645 torch ops, 44,065 kernel launches (0.32 s of host time in the launch calls alone), 2,801
 stream synchronisations and 3,217 copies. Of the GPU's 0.34 s, the scans of compositing
 (`cumsum`) take 38 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of
 a tile and scans them all, where a rasterizer kernel stops each pixel at its transmittance
-limit. At 8 views the profiled run did not finish within the 80 s we gave it (the profiler's
-own overhead); the unprofiled run's steps (`filter_speed.py` above) grow with the renders'
-count the same way. So the backend is bound
+limit. The unprofiled runs' steps (`filter_speed.py` above) grow with the renders' count the
+same way: at 16 views the exclusion renders take 12.1 s of the 28.7. So the backend is bound
 by launches and host round trips, and on the device by fragment expansion; 0.3 s at 8 views
 needs fused compositing kernels and stages that stay on the device, not a faster card.
 
@@ -667,12 +671,24 @@ def parse_blocks(page: str) -> dict:
     return out
 
 
+def parse_notes(page: str) -> dict:
+    """The hand-written text of an existing page after each generated block, by section name:
+    what lies between the block's end and the next block's beginning (or the page's end)."""
+    out = {}
+    for name in SECTIONS:
+        m = re.search(re.escape(end(name)) + r"\n(.*?)(?=<!-- report:|\Z)", page, re.S)
+        if m and m.group(1).strip():
+            out[name] = m.group(1).strip("\n")
+    return out
+
+
 PAGE_ORDER = ("scenarios", "quality", "ablation", "speed", "dense", "gpu", "datasets")
 
 
 def assemble(blocks: dict, old: str = "") -> str:
-    """The page from new ``blocks`` and, for the sections not among them, ``old``'s."""
-    kept = parse_blocks(old)
+    """The page from new ``blocks`` and, for the sections not among them, ``old``'s; the
+    hand-written text that ``old`` has after a block (:func:`parse_notes`) stays after it."""
+    kept, notes = parse_blocks(old), parse_notes(old)
     parts = [PREAMBLE]
     for name in PAGE_ORDER:
         body = blocks.get(name, kept.get(name))
@@ -680,6 +696,8 @@ def assemble(blocks: dict, old: str = "") -> str:
             body = (f"## {name.capitalize()}\n\nNot generated yet: `python benchmarks/report.py "
                     f"--out docs/benchmarks.md --only {name}`.\n")
         parts.append(f"{begin(name)}\n{body.rstrip()}\n{end(name)}\n")
+        if name in notes:
+            parts.append(notes[name].rstrip() + "\n")
     return "\n".join(parts)
 
 

@@ -125,8 +125,15 @@ def test_full_grid_page_from_stored_rows_stays_short_and_merges(tmp_path, report
                             stdout="scenario  family  views\n" + "plain object 4 34.59\n" * 32,
                             seconds=100.0, finished="2026-01-02 07:00")
     scen = report.section_scenarios([strengths], report.machine(), work)
+    # Text written by hand after a block stays after it, also when the block is replaced.
+    note = "### By hand\n\nA measurement the report does not run.\n"
+    text = text.replace("<!-- /report:speed -->\n", "<!-- /report:speed -->\n\n" + note, 1)
     merged = report.assemble({"speed": block, "scenarios": scen}, text)
     after = report.parse_blocks(merged)
+    assert merged.count(note) == 1
+    assert merged.index("<!-- /report:speed -->") < merged.index(note) < merged.index(
+        "<!-- report:dense -->")
+    assert report.assemble({}, merged) == merged        # idempotent: nothing added twice
     assert after["quality"] == quality and after["ablation"] == blocks["ablation"]
     assert "wall s: median 3.00" in after["speed"] and "Not generated yet" not in merged
     assert "images/realism-all.png" in after["scenarios"]
