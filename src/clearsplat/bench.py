@@ -52,6 +52,7 @@ ABLATIONS = {
     "one-round": "default+rounds=1",
     "every-view": "default+neighbours=null+verify_views=centres",
     "no-color-explained": "default+color_explained=null",
+    "keep-removed-px": "default+verify_mask_removed=false",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",

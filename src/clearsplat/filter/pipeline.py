@@ -33,7 +33,7 @@ from .config import FilterConfig
 from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
-from .refine import explained_candidates, refine
+from .refine import explained_candidates, refine, removed_pixels
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
@@ -108,9 +108,11 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
             light = previous is not None    # views made afresh come from the whole scene
             if light:
                 previous.source = (scene, result.keep.copy())
+            # Pixels whose input image shows a distractor removed so far (verify_mask_removed).
+            shown = removed_pixels(scene, ~result.keep) if config.verify_mask_removed else None
             later, carry = run_round(kept_scene(scene, kept, light=light), config, extractor,
                                      backend, in_round(report, round_), previous=previous,
-                                     hold=round_ < rounds, plan=plan)
+                                     hold=round_ < rounds, plan=plan, removed=shown)
             previous = None             # spent (the round released it)
             merge_round(result, later, kept, round_)
             if later.keep.all():        # nothing new: a further round would find the same
@@ -123,11 +125,13 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
 
 
 def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Progress, *,
-              previous: Carry | None = None, hold: bool = False, plan=None
-              ) -> tuple[FilterResult, Carry | None]:
+              previous: Carry | None = None, hold: bool = False, plan=None,
+              removed: list | None = None) -> tuple[FilterResult, Carry | None]:
     """One run of the procedure on ``scene`` (at least two views and one Gaussian).
 
     ``previous``: what the round before handed on, ``scene`` being its kept Gaussians.
+    ``removed``: per view, (H, W) bool, the pixels where the rounds before removed that
+    view's Gaussians, left out of verification (``verify_mask_removed``; None: none).
     ``hold``: hand this round's views and renders on (where the backend can) instead of
     releasing them. ``plan``: the views each camera's renders hold and each view's
     verification views (:func:`~clearsplat.filter.neighbours.view_plan`; None: the
@@ -162,9 +166,12 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     # Each candidate reads its pixels from its region (made from the grid cells when read).
     candidates = [Candidate(k, r.view, r.range, r, g if revealing is None
                             else g[revealing[g]]) for k, (r, g) in enumerate(zip(regions, raw))]
-    if config.verify_mask != "proposals":
-        for p in proposals:     # pixels verification leaves out (``verify_mask``)
+    for p in proposals:         # pixels verification leaves out (``verify_mask``)
+        if config.verify_mask != "proposals":
             p.unreliable = refinement.front_pixels[p.view]
+        if removed is not None:
+            p.unreliable = (removed[p.view] if p.unreliable is None
+                            else p.unreliable | removed[p.view])
     state.lap("regions")
     state.clock.end_stage()
 

@@ -21,9 +21,8 @@ from .masks import label8, touched_components
 from .robust import misregistration, tolerant_reference
 
 __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
-           "join_touching",
-           "member_depths", "member_pixels", "pixels_of", "box_distance", "color_distances",
-           "explained_candidates"]
+           "join_touching", "member_depths", "member_pixels", "pixels_of", "removed_pixels",
+           "box_distance", "color_distances", "explained_candidates"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -487,14 +486,38 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
     pix = index.pixels[view].astype(np.int64)
     loose = pix < 0
     if loose.any():
-        cam = scene.cameras[view]
-        uv, z = cam.project(scene.gaussians.means[members[loose]])
-        with np.errstate(invalid="ignore"):
-            col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
-            row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
-        ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
-        pix[loose] = np.where(ok, row * cam.width + col, -1).astype(np.int64)
+        pix[loose] = _centre_pixels(scene.cameras[view], scene.gaussians.means[members[loose]])
     return pix
+
+
+def _centre_pixels(cam, means: np.ndarray) -> np.ndarray:
+    """Flat pixel of ``cam``'s image that each centre ((M, 3)) projects to, (M,) int64; -1
+    behind the camera or outside the image."""
+    uv, z = cam.project(means)
+    with np.errstate(invalid="ignore"):
+        col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
+        row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
+    ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+    return np.where(ok, row * cam.width + col, -1).astype(np.int64)
+
+
+def removed_pixels(scene: Scene, removed: np.ndarray) -> list[np.ndarray]:
+    """Per input view, (H, W) bool: the pixels of its own Gaussians among ``removed`` ((N,)
+    bool), where its input image shows what was removed (``pixel_id``, or the pixel a
+    Gaussian's centre projects to where the model is not pixel-aligned)."""
+    where = np.flatnonzero(removed)
+    views, pix = scene.view_id[where], scene.pixel_id[where].astype(np.int64)
+    out = []
+    for v, cam in enumerate(scene.cameras):
+        mask = np.zeros(cam.height * cam.width, dtype=bool)
+        sel = views == v
+        p = pix[sel]
+        loose = p < 0
+        if loose.any():
+            p[loose] = _centre_pixels(cam, scene.gaussians.means[where[sel][loose]])
+        mask[p[p >= 0]] = True
+        out.append(mask.reshape(cam.height, cam.width))
+    return out
 
 
 def pixels_of(scene: Scene, index: ViewIndex, view: int, selected: np.ndarray) -> np.ndarray:
