@@ -5,7 +5,8 @@ kept (``FilterConfig.rounds``): one view's distractor can hide another's in R_i^
 the first round's removals gone it shows. A later round on the CPU takes the round before's
 prepared views, restricted to the kept Gaussians, and its renders, composited again only where
 the removals touched (:class:`Carry`); both are exact, so a round equals a fresh run on what
-the rounds before kept.
+the rounds before kept, but for the pixels ``verify_mask_removed`` leaves out of its
+verification (where the rounds before removed a verifying view's own Gaussians).
 """
 
 from __future__ import annotations
