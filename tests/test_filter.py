@@ -313,8 +313,10 @@ def test_every_candidate_is_expanded_and_only_the_accepted_removed(result):
     for c in result.candidates:
         if c.accepted:
             union[c.expanded] = True
-        # the region lies within the support, so its dilation holds its own Gaussians
-        assert set(c.gaussians.tolist()) <= set(c.expanded.tolist())
+        # the region lies within the support, so its dilation holds its own Gaussians, but
+        # for those no verifying view sees (verify_hidden)
+        hidden = c.scores.get("hidden", 0)
+        assert len(set(c.gaussians.tolist()) - set(c.expanded.tolist())) <= hidden
     np.testing.assert_array_equal(result.removed, union)
 
 

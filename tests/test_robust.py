@@ -460,10 +460,11 @@ def test_revealing_by_depth_is_the_test_without_colours():
 
 def test_expansion_by_depth_only_drops_what_the_colour_test_alone_kept(soft_scene):
     """``expand_color=False`` decides every candidate as before and expands each to a subset
-    of its former expansion that still holds the candidate's own Gaussians."""
+    of its former expansion that still holds the candidate's own Gaussians (all of them:
+    ``verify_hidden`` off)."""
     scene, _ = soft_scene
     ex = get_extractor("local")
-    cfg = FilterConfig(rounds=1)
+    cfg = FilterConfig(rounds=1, verify_hidden=None)
     on = filter_distractors(scene, config=cfg, extractor=ex)
     off = filter_distractors(scene, config=cfg.replace(expand_color=False), extractor=ex)
     assert [c.scores.get("individual") for c in on.candidates] == \

@@ -53,6 +53,7 @@ ABLATIONS = {
     "every-view": "default+neighbours=null+verify_views=centres",
     "no-color-explained": "default+color_explained=null",
     "keep-removed-px": "default+verify_mask_removed=false",
+    "remove-hidden": "default+verify_hidden=null",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",

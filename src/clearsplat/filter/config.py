@@ -357,6 +357,15 @@ class FilterConfig:
         not the scene. True by default (measured: at 8 views it finds as much or more in
         every scenario of the realism benchmark and removes as much of the static scene,
         docs/method.md); False: those pixels count. With one round it changes nothing.
+    verify_hidden : float or None
+        An accepted candidate removes only the Gaussians of hat C_k that at least one of its
+        verifying views sees: whose centre, projected into that view, lies at most this share
+        of the depth behind the view's own surface there (the nearest of its own Gaussians at
+        that pixel; a pixel without any counts as seen). A Gaussian behind the surface of every
+        verifying view is hidden from all of them; their images say nothing about it, so it
+        stays (a surface only the candidate's view sees, such as the side of an object the
+        other cameras face away from, goes with a candidate only where it shows). None: every
+        Gaussian of hat C_k (the paper).
     leave_out : int
         Views on each side, in input order, whose Gaussians R_i^-i also leaves out with view
         i's own, and which do not verify view i. For video: a passer-by who stays for a few
@@ -443,6 +452,7 @@ class FilterConfig:
     neighbours: int | None | str = "auto"
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
     verify_mask_removed: bool = True
+    verify_hidden: float | None = 0.05
     leave_out: int = 0
     backend: Literal["auto", "native", "gsplat", "torch"] = "auto"
 
@@ -564,6 +574,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
     "verify_mask_removed": FieldSpec("bool"),
+    "verify_hidden": FieldSpec("number", 0.0, optional=True),
     "leave_out": FieldSpec("integer", 0),
     "backend": FieldSpec("choice", choices=("auto", "native", "gsplat", "torch")),
 }
@@ -582,7 +593,8 @@ PRESETS = {
                           color_explained=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                          neighbours=None, verify_views="centres", verify_mask_removed=False),
+                          neighbours=None, verify_views="centres", verify_mask_removed=False,
+                          verify_hidden=None),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -595,7 +607,8 @@ PRESETS = {
                                 refine_tolerance_depth=True, edge_tolerance=0,
                                 depth_scale_reach=0, rounds=1,
                                 refine_color_grow=None, neighbours=None,
-                                verify_views="centres", verify_mask_removed=False),
+                                verify_views="centres", verify_mask_removed=False,
+                                verify_hidden=None),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").

@@ -39,7 +39,8 @@ from .result import Candidate, FilterResult
 from .robust import aligned_images
 from .rounds import Carry, in_round, kept_scene, merge_round
 from .state import Progress, RoundState
-from .verify import individual_tests, make_verifier, range_masks, second_range_tests
+from .verify import (individual_tests, make_verifier, range_masks, second_range_tests,
+                     seen_by_verifiers)
 
 __all__ = ["Candidate", "FilterResult", "filter_distractors", "run_round"]
 
@@ -189,6 +190,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
             passed = _unexplained(state, passed, raw, refinement)
         state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
+        if config.verify_hidden is not None:     # only what a verifying view sees
+            seen_by_verifiers(state, candidates, config.verify_hidden)
         state.lap("second_range")
     else:
         state.lap("expand")

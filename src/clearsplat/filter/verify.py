@@ -38,6 +38,7 @@ from .robust import tolerant_images
 
 __all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views", "top_views",
            "make_verifier", "exclusion_masks", "range_masks", "passes", "median_relative_score",
+           "seen_by_verifiers", "own_depth_map",
            "individual_tests", "second_range_tests"]
 
 #: ``verify_mask="auto"`` leaves the proposal regions in verification (``"revealing"``) from
@@ -464,3 +465,54 @@ def _joint_terms(verifier, pv, j: int, base_keep, jointly, joint, start, q) -> P
     base = pv.render(keep=base_keep)
     (p,) = verifier.score_view(j, base_keep, base, [joint], q)
     return p
+
+
+def own_depth_map(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
+    """(H*W,) float64: per pixel of ``view``, the camera depth of the nearest of its own
+    Gaussians there (their ``pixel_id``, or the pixel their centre projects to); ``inf`` where
+    it has none."""
+    from .refine import member_pixels
+    cam = scene.cameras[view]
+    out = np.full(cam.height * cam.width, np.inf)
+    members = index.members[view]
+    if members.size:
+        z = cam.to_camera(scene.gaussians.means[members])[:, 2]
+        pix = member_pixels(scene, index, view)
+        ok = (pix >= 0) & (z > 0)
+        np.minimum.at(out, pix[ok], z[ok])
+    return out
+
+
+def seen_by_verifiers(state, candidates: list, margin: float) -> None:
+    """Cut each candidate's hat C_k (``c.expanded``) to the Gaussians that one of its
+    verifying views sees (``FilterConfig.verify_hidden``).
+
+    A Gaussian is seen by view j when its centre projects inside j's image, in front of the
+    camera, at most ``margin`` times the depth behind j's own surface there
+    (:func:`own_depth_map`; a pixel where j has no Gaussian of its own counts as seen).
+    Candidates without verifying views or expansion are left as they are. Each cut candidate
+    gets ``scores["hidden"]``: how many Gaussians it keeps for that reason.
+    """
+    scene = state.scene
+    means = scene.gaussians.means
+    own: dict = {}
+    for c in candidates:
+        if c.expanded is None or c.expanded.size == 0 or not c.verify_views:
+            continue
+        pts = means[c.expanded]
+        seen = np.zeros(c.expanded.size, dtype=bool)
+        for j in c.verify_views:
+            if j not in own:
+                own[j] = own_depth_map(scene, state.index, j)
+            cam = scene.cameras[j]
+            uv, z = cam.project(pts)
+            with np.errstate(invalid="ignore"):
+                col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
+                row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
+            inside = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+            surface = own[j][(row[inside] * cam.width + col[inside]).astype(np.int64)]
+            seen[inside] |= z[inside] <= (1.0 + margin) * surface
+        hidden = int(np.count_nonzero(~seen))
+        if hidden:
+            c.expanded = c.expanded[seen]
+            c.scores["hidden"] = hidden
