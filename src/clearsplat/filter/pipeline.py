@@ -190,9 +190,10 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
             passed = _unexplained(state, passed, raw, refinement)
         state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
+        state.lap("second_range")
         if config.verify_hidden is not None:     # only what a verifying view sees
             seen_by_verifiers(state, candidates, config.verify_hidden)
-        state.lap("second_range")
+            state.lap("hidden")
     else:
         state.lap("expand")
         for c in candidates:

@@ -21,7 +21,8 @@ from .masks import label8, touched_components
 from .robust import misregistration, tolerant_reference
 
 __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
-           "join_touching", "member_depths", "member_pixels", "pixels_of", "removed_pixels",
+           "join_touching", "member_depths", "member_pixels", "centre_pixels", "pixels_of",
+           "removed_pixels",
            "box_distance", "color_distances", "explained_candidates"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
@@ -493,12 +494,19 @@ def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
 def _centre_pixels(cam, means: np.ndarray) -> np.ndarray:
     """Flat pixel of ``cam``'s image that each centre ((M, 3)) projects to, (M,) int64; -1
     behind the camera or outside the image."""
+    return centre_pixels(cam, means)[0]
+
+
+def centre_pixels(cam, means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(pixels, depths)``: the flat pixel of ``cam``'s image that each centre ((M, 3))
+    projects to, (M,) int64, -1 behind the camera or outside the image; and its camera depth,
+    (M,) float."""
     uv, z = cam.project(means)
     with np.errstate(invalid="ignore"):
         col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
         row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
     ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
-    return np.where(ok, row * cam.width + col, -1).astype(np.int64)
+    return np.where(ok, row * cam.width + col, -1).astype(np.int64), z
 
 
 def removed_pixels(scene: Scene, removed: np.ndarray) -> list[np.ndarray]:

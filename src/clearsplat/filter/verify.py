@@ -34,6 +34,7 @@ import numpy as np
 
 from ..scene import Scene
 from .association import ViewIndex
+from .refine import centre_pixels, member_pixels
 from .robust import tolerant_images
 
 __all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views", "top_views",
@@ -471,7 +472,6 @@ def own_depth_map(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
     """(H*W,) float64: per pixel of ``view``, the camera depth of the nearest of its own
     Gaussians there (their ``pixel_id``, or the pixel their centre projects to); ``inf`` where
     it has none."""
-    from .refine import member_pixels
     cam = scene.cameras[view]
     out = np.full(cam.height * cam.width, np.inf)
     members = index.members[view]
@@ -504,14 +504,9 @@ def seen_by_verifiers(state, candidates: list, margin: float) -> None:
         for j in c.verify_views:
             if j not in own:
                 own[j] = own_depth_map(scene, state.index, j)
-            cam = scene.cameras[j]
-            uv, z = cam.project(pts)
-            with np.errstate(invalid="ignore"):
-                col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
-                row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
-            inside = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
-            surface = own[j][(row[inside] * cam.width + col[inside]).astype(np.int64)]
-            seen[inside] |= z[inside] <= (1.0 + margin) * surface
+            pix, z = centre_pixels(scene.cameras[j], pts)
+            inside = pix >= 0
+            seen[inside] |= z[inside] <= (1.0 + margin) * own[j][pix[inside]]
         hidden = int(np.count_nonzero(~seen))
         if hidden:
             c.expanded = c.expanded[seen]
