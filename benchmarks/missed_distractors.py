@@ -26,7 +26,9 @@ in the first of these steps that lost it:
   2.5 robust standard deviations of the view's depth ratio), *in front by more, all the same*
   (by more than that too: the second refinement pass, or the colour test's tolerance, dropped
   it);
-- *rejected (...)*: in a candidate that a test rejected, by the reason it gives.
+- *rejected (...)*: in a candidate that a test rejected, by the reason it gives;
+- *accepted: hidden from its verifying views*: in an accepted candidate, but behind the own
+  surface of each of its verifying views (``verify_hidden``).
 
 Prints the totals, then per input view the distractor Gaussians, those missed, the view's
 widened margin and their steps, and with ``--view`` every candidate of that view with its round, scores, verification
@@ -116,10 +118,12 @@ def _steps(scene, result, truth, min_weight: float, margin: float,
     step[missed & in_region] = _against_reference(scene, index, missed & in_region, in_region,
                                                   margin, align_scale, margins)
     for c in result.candidates:      # the latest test a candidate reached names the loss
+        lost = c.gaussians[missed[c.gaussians]]
         if not c.accepted:
-            lost = c.gaussians[missed[c.gaussians]]
             step[lost] = c.reason.replace("rejected by ", "rejected (") + (
                 ")" if c.reason.startswith("rejected by") else "")
+        elif lost.size:     # accepted, but no verifying view sees them (verify_hidden)
+            step[lost] = "accepted: hidden from its verifying views"
     return step
 
 

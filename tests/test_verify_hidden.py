@@ -47,7 +47,7 @@ def _own_depth_by_loop(scene, view):
     return out
 
 
-def _seen_by_loop(scene, expanded, verify_views, margin):
+def _seen_by_loop(scene, expanded, verify_views, margin, view_margins=None):
     keep = []
     for g in expanded:
         for j in verify_views:
@@ -56,7 +56,12 @@ def _seen_by_loop(scene, expanded, verify_views, margin):
                 continue
             row, col, z = hit
             surface = _own_depth_by_loop(scene, j)[row * scene.cameras[j].width + col]
-            if z <= (1.0 + margin) * surface:
+            m = margin
+            if view_margins is not None:    # the largest of the three
+                for v in (int(scene.view_id[g]), j):
+                    if view_margins[v] is not None:
+                        m = max(m, view_margins[v])
+            if z <= (1.0 + m) * surface:
                 keep.append(g)
                 break
     return np.array(keep, dtype=np.int64)
@@ -85,11 +90,15 @@ def test_own_depth_map_matches_a_loop(small, view):
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
+@pytest.mark.parametrize("widen", [False, True])
 @pytest.mark.parametrize("seed", range(4))
-def test_seen_by_verifiers_matches_a_loop(small, seed):
+def test_seen_by_verifiers_matches_a_loop(small, seed, widen):
     rng = np.random.default_rng(seed)
     state = SimpleNamespace(scene=small, index=ViewIndex(small))
     margin = float(rng.choice([0.0, 0.05, 0.3]))
+    # Per view, refinement's margin (None: a view without one), some below ``margin``.
+    view_margins = ([None if rng.random() < 0.25 else float(rng.uniform(0.0, 0.4))
+                     for _ in range(4)] if widen else None)
     candidates, wants = [], []
     for k in range(5):
         view = int(rng.integers(4))
@@ -100,8 +109,8 @@ def test_seen_by_verifiers_matches_a_loop(small, seed):
         c = Candidate(k, view, 1, np.zeros((24, 40), bool), expanded[:10])
         c.expanded, c.verify_views = expanded.copy(), verifiers
         candidates.append(c)
-        wants.append(_seen_by_loop(small, expanded, verifiers, margin))
-    seen_by_verifiers(state, candidates, margin)
+        wants.append(_seen_by_loop(small, expanded, verifiers, margin, view_margins))
+    seen_by_verifiers(state, candidates, margin, view_margins)
     cut = 0
     for c, want in zip(candidates, wants):
         assert np.array_equal(c.expanded, want)
@@ -110,47 +119,80 @@ def test_seen_by_verifiers_matches_a_loop(small, seed):
     assert cut > 0       # the jitter hides something from some verifier
 
 
-def test_a_surface_behind_the_verifying_views_own_stays():
-    # View 1 looks at a wall at depth 2 (its own Gaussians). Candidate Gaussians of view 0 lie
-    # on its line of sight: one in front of the wall, one behind it, one beside the image.
+def _wall_candidate(points) -> tuple:
+    """View 1 looks at a wall at depth 2 (its own Gaussians); ``points`` are Gaussians of view
+    0 (a camera 0.5 to the side), the expansion of one candidate that view 1 verifies.
+    Returns ``(state, candidate)``."""
     K = np.array([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]])
     cams = [Camera(K, look_at((x, 0.0, 0.0), (x, 0.0, 2.0), up=(0.0, -1.0, 0.0)), 20, 20)
             for x in (0.5, 0.0)]
     wall = np.array([[x, y, 2.0] for x in np.linspace(-0.4, 0.4, 9)
                      for y in np.linspace(-0.4, 0.4, 9)])
-    cand = np.array([[0.0, 0.0, 1.5], [0.05, 0.0, 2.5], [3.0, 0.0, 1.0]])
-    means = np.concatenate([cand, wall]).astype(np.float32)
-    n = len(means)
+    means = np.concatenate([np.asarray(points, np.float64), wall]).astype(np.float32)
+    n, k = len(means), len(points)
     gaussians = Gaussians(means, np.full((n, 3), 0.01, np.float32),
                           np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
                           np.full(n, 0.9, np.float32), np.zeros((n, 1, 3), np.float32))
-    view_id = np.array([0] * 3 + [1] * len(wall), dtype=np.int64)
+    view_id = np.array([0] * k + [1] * len(wall), dtype=np.int64)
     scene = Scene(gaussians, view_id, np.full(n, -1, np.int64), cams)
-    state = SimpleNamespace(scene=scene, index=ViewIndex(scene))
-    c = Candidate(0, 0, 1, np.zeros((20, 20), bool), np.arange(3))
-    c.expanded, c.verify_views = np.arange(3), [1]
+    c = Candidate(0, 0, 1, np.zeros((20, 20), bool), np.arange(k))
+    c.expanded, c.verify_views = np.arange(k), [1]
+    return SimpleNamespace(scene=scene, index=ViewIndex(scene)), c
+
+
+def test_a_surface_behind_the_verifying_views_own_stays():
+    # On view 1's line of sight: one in front of the wall, one behind it; one beside the image.
+    state, c = _wall_candidate([[0.0, 0.0, 1.5], [0.05, 0.0, 2.5], [3.0, 0.0, 1.0]])
     seen_by_verifiers(state, [c], 0.05)
     assert c.expanded.tolist() == [0]
     assert c.scores["hidden"] == 2
 
 
+@pytest.mark.parametrize("own, verifier, kept", [
+    (None, None, [0]),          # 0.05: 2.2 is 10 % behind the wall at 2
+    (0.08, 0.02, [0]),          # neither view's margin reaches 10 %
+    (0.12, 0.02, [0, 1]),       # the candidate's view is that noisy
+    (0.02, 0.12, [0, 1]),       # the verifying view is
+])
+def test_a_noisy_view_widens_the_margin(own, verifier, kept):
+    state, c = _wall_candidate([[0.0, 0.0, 1.5], [0.0, 0.0, 2.2]])
+    seen_by_verifiers(state, [c], 0.05, None if own is None else [own, verifier])
+    assert c.expanded.tolist() == kept
+
+
 def test_paper_presets_remove_all_of_the_expansion():
     for name in ("paper", "paper-local"):
         assert FilterConfig.preset(name).verify_hidden is None
+        assert not FilterConfig.preset(name).verify_hidden_widen
     assert FilterConfig().verify_hidden == 0.05
+    assert FilterConfig().verify_hidden_widen
+
+
+def _removes_less(scene, more: FilterConfig, less: FilterConfig) -> list:
+    """Filter ``scene`` with both configs: the same verdicts, and every expansion and the
+    removal of ``less`` a strict subset of ``more``'s. Returns the candidate pairs."""
+    extractor = get_extractor("local")
+    a = filter_distractors(scene, config=more, extractor=extractor)
+    b = filter_distractors(scene, config=less, extractor=extractor)
+    assert [c.accepted for c in a.candidates] == [c.accepted for c in b.candidates]
+    assert not (b.removed & ~a.removed).any()
+    for ca, cb in zip(a.candidates, b.candidates):
+        assert set(cb.expanded.tolist()) <= set(ca.expanded.tolist())
+    assert a.removed.sum() > b.removed.sum()
+    return list(zip(a.candidates, b.candidates))
+
+
+def test_widening_only_keeps_more():
+    # The object world with every artifact: view 2's depth test is widened to 9.6 % there,
+    # and the back of its distractor lies up to that far behind the others' surfaces.
+    world = make_world("object", num_views=4, seed=0, height=128, width=224)
+    scene, _ = realistic_reconstruction(world, "all", seed=0)
+    _removes_less(scene, FilterConfig(), FilterConfig(verify_hidden_widen=False))
 
 
 def test_the_option_only_keeps_gaussians():
+    # One round at four views; the clean twin keeps some Gaussians.
     world = make_world("object", num_views=4, seed=1, height=128, width=224)
     scene, _ = realistic_reconstruction(world, "plain", seed=1, clean=True)
-    extractor = get_extractor("local")
-    on = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
-    off = filter_distractors(scene, config=FilterConfig(verify_hidden=None),
-                             extractor=extractor)
-    # One round at four views: the same verdicts, and each removal a subset.
-    assert [c.accepted for c in on.candidates] == [c.accepted for c in off.candidates]
-    assert not (on.removed & ~off.removed).any()
-    for a, b in zip(on.candidates, off.candidates):
-        assert set(a.expanded.tolist()) <= set(b.expanded.tolist())
-        assert a.expanded.size + a.scores.get("hidden", 0) == b.expanded.size
-    assert off.removed.sum() > on.removed.sum()      # the clean twin keeps some Gaussians
+    for off, on in _removes_less(scene, FilterConfig(verify_hidden=None), FilterConfig()):
+        assert on.expanded.size + on.scores.get("hidden", 0) == off.expanded.size

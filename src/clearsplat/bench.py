@@ -54,6 +54,7 @@ ABLATIONS = {
     "no-color-explained": "default+color_explained=null",
     "keep-removed-px": "default+verify_mask_removed=false",
     "remove-hidden": "default+verify_hidden=null",
+    "hidden-fixed": "default+verify_hidden_widen=false",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",

@@ -366,6 +366,13 @@ class FilterConfig:
         stays (a surface only the candidate's view sees, such as the side of an object the
         other cameras face away from, goes with a candidate only where it shows). None: every
         Gaussian of hat C_k (the paper).
+    verify_hidden_widen : bool
+        With ``verify_hidden``: the margin for a Gaussian and a verifying view is at least the
+        margin of refinement's depth test in either view, which ``depth_scale_align`` widens to
+        2.5 robust standard deviations of the view's depth ratio to the others (True by
+        default: where a view's depths are that noisy, the back of its distractor lies that
+        far behind the others' surfaces; measured in docs/method.md). False:
+        ``verify_hidden`` alone.
     leave_out : int
         Views on each side, in input order, whose Gaussians R_i^-i also leaves out with view
         i's own, and which do not verify view i. For video: a passer-by who stays for a few
@@ -453,6 +460,7 @@ class FilterConfig:
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
     verify_mask_removed: bool = True
     verify_hidden: float | None = 0.05
+    verify_hidden_widen: bool = True
     leave_out: int = 0
     backend: Literal["auto", "native", "gsplat", "torch"] = "auto"
 
@@ -575,6 +583,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
     "verify_mask_removed": FieldSpec("bool"),
     "verify_hidden": FieldSpec("number", 0.0, optional=True),
+    "verify_hidden_widen": FieldSpec("bool"),
     "leave_out": FieldSpec("integer", 0),
     "backend": FieldSpec("choice", choices=("auto", "native", "gsplat", "torch")),
 }
@@ -594,7 +603,7 @@ PRESETS = {
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres", verify_mask_removed=False,
-                          verify_hidden=None),
+                          verify_hidden=None, verify_hidden_widen=False),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -608,7 +617,7 @@ PRESETS = {
                                 depth_scale_reach=0, rounds=1,
                                 refine_color_grow=None, neighbours=None,
                                 verify_views="centres", verify_mask_removed=False,
-                                verify_hidden=None),
+                                verify_hidden=None, verify_hidden_widen=False),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").

@@ -192,7 +192,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
         state.lap("second_range")
         if config.verify_hidden is not None:     # only what a verifying view sees
-            seen_by_verifiers(state, candidates, config.verify_hidden)
+            seen_by_verifiers(state, candidates, config.verify_hidden,
+                              refinement.margins if config.verify_hidden_widen else None)
             state.lap("hidden")
     else:
         state.lap("expand")

@@ -44,7 +44,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         workers: int | None = None, members: tuple | None = None,
                         color_distance: np.ndarray | None = None,
                         scale_depths: list[np.ndarray] | None = None,
-                        by_depth: bool = False) -> np.ndarray | tuple:
+                        by_depth: bool = False,
+                        margins: list | None = None) -> np.ndarray | tuple:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -101,6 +102,9 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     by_depth : bool
         Also return the Gaussians that qualify by the depth test alone (without the colour
         test): ``(qualify, in_front)``, both (N,) bool.
+    margins : list, optional
+        A list of one entry per view, filled with the margin the view's depth test used
+        (``margin``, widened with ``align_scale``); None for a view without Gaussians.
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -129,6 +133,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             scale, spread = view_depth_scales([z], [measured])[0]
             z = z / scale
             view_margin = widened_margin(margin, spread)
+        if margins is not None:
+            margins[view] = float(view_margin)
         front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
         in_front = front.copy() if by_depth else None
         if color_threshold is not None and reference_rgbs is not None:
@@ -325,12 +331,17 @@ class Refinement:
         Of ``revealing``, those that qualify by depth alone, without the colour test (with
         ``expand_color=False`` and ``refine="static-depth"``, the refinement with a colour
         test; None otherwise).
+    margins : list of float, or None
+        Per view, the margin of the last pass's depth test, widened by the view's depth noise
+        with ``depth_scale_align`` (:func:`revealing_gaussians`; with
+        ``refine="static-depth"``, else None): what ``verify_hidden_widen`` reads.
     """
 
     revealing: np.ndarray | None
     front_pixels: list | None = None
     color_distance: np.ndarray | None = None
     in_front: np.ndarray | None = None
+    margins: list | None = None
 
 
 def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
@@ -359,18 +370,21 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
         Every candidate's Gaussians C_k before refinement (the proposed Gaussians).
     """
     config = state.config
-    revealing, distances, in_front = _revealing(state, renders.excl, images, raw)
+    margins = [None] * state.num_views
+    revealing, distances, in_front = _revealing(state, renders.excl, images, raw, margins)
     front = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
-    return Refinement(revealing, front, distances, in_front)
+    measured = config.refine == "static-depth"
+    return Refinement(revealing, front, distances, in_front, margins if measured else None)
 
 
-def _revealing(state, excl: list, images: list, raw: list) -> tuple:
+def _revealing(state, excl: list, images: list, raw: list, margins: list) -> tuple:
     """(N,) bool: the Gaussians in front of the reference of ``config.refine``; with
     ``color_explained``, each Gaussian's colour distance to the last static reference; with
-    ``expand_color=False``, the first of them by the depth test alone (else None each)."""
+    ``expand_color=False``, the first of them by the depth test alone (else None each). The
+    last pass's margins go to ``margins`` (per view)."""
     config = state.config
     if config.refine == "depth":    # no colour test: in front by depth is all there is
         revealing = revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
@@ -404,7 +418,8 @@ def _revealing(state, excl: list, images: list, raw: list) -> tuple:
                                         reference_rgbs_hi=hi)
         revealing, in_front = _in_front(state, reference, images, members, distances,
                                         scale_depths=_scale_depths(state, depths),
-                                        by_depth=last and not config.expand_color)
+                                        by_depth=last and not config.expand_color,
+                                        margins=margins)
         proposed &= revealing
     return revealing, distances, in_front
 
@@ -460,7 +475,8 @@ def _scale_depths(state, reference: list) -> list | None:
 
 def _in_front(state, reference: tuple, images: list, members: tuple,
               distances: np.ndarray | None = None,
-              scale_depths: list | None = None, by_depth: bool = False) -> tuple:
+              scale_depths: list | None = None, by_depth: bool = False,
+              margins: list | None = None) -> tuple:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
     (:func:`_tolerant`), and with ``by_depth`` those it keeps by depth alone (else None)."""
     config = state.config
@@ -474,7 +490,7 @@ def _in_front(state, reference: tuple, images: list, members: tuple,
                               color_grow=config.refine_color_grow,
                               workers=config.num_threads, members=members,
                               color_distance=distances, scale_depths=scale_depths,
-                              by_depth=by_depth)
+                              by_depth=by_depth, margins=margins)
     return out if by_depth else (out, None)
 
 

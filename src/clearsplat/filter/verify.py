@@ -483,30 +483,43 @@ def own_depth_map(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
     return out
 
 
-def seen_by_verifiers(state, candidates: list, margin: float) -> None:
+def seen_by_verifiers(state, candidates: list, margin: float,
+                      view_margins: list | None = None) -> None:
     """Cut each candidate's hat C_k (``c.expanded``) to the Gaussians that one of its
     verifying views sees (``FilterConfig.verify_hidden``).
 
     A Gaussian is seen by view j when its centre projects inside j's image, in front of the
     camera, at most ``margin`` times the depth behind j's own surface there
-    (:func:`own_depth_map`; a pixel where j has no Gaussian of its own counts as seen).
+    (:func:`own_depth_map`; a pixel where j has no Gaussian of its own counts as seen). With
+    ``view_margins`` (per view, the margin of refinement's depth test, widened by the view's
+    depth noise: :attr:`~clearsplat.filter.refine.Refinement.margins`; None for a view
+    without one) the margin for a Gaussian and view j is the largest of ``margin``, its own
+    view's and j's (``verify_hidden_widen``).
     Candidates without verifying views or expansion are left as they are. Each cut candidate
     gets ``scores["hidden"]``: how many Gaussians it keeps for that reason.
     """
     scene = state.scene
     means = scene.gaussians.means
+    widened = None
+    if view_margins is not None:
+        widened = np.array([margin if m is None else max(margin, m) for m in view_margins])
     own: dict = {}
     for c in candidates:
         if c.expanded is None or c.expanded.size == 0 or not c.verify_views:
             continue
         pts = means[c.expanded]
+        ratio = np.full(c.expanded.size, 1.0 + margin)
+        if widened is not None:
+            ratio = 1.0 + widened[scene.view_id[c.expanded]]
         seen = np.zeros(c.expanded.size, dtype=bool)
         for j in c.verify_views:
             if j not in own:
                 own[j] = own_depth_map(scene, state.index, j)
             pix, z = centre_pixels(scene.cameras[j], pts)
             inside = pix >= 0
-            seen[inside] |= z[inside] <= (1.0 + margin) * own[j][pix[inside]]
+            limit = ratio[inside] if widened is None else np.maximum(ratio[inside],
+                                                                     1.0 + widened[j])
+            seen[inside] |= z[inside] <= limit * own[j][pix[inside]]
         hidden = int(np.count_nonzero(~seen))
         if hidden:
             c.expanded = c.expanded[seen]
