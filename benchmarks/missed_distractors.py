@@ -6,6 +6,9 @@ Usage::
     python benchmarks/missed_distractors.py --views 16 --config default+rounds=1 --view 14
     python benchmarks/missed_distractors.py --family street --views 32 --occlusion high \
         --config default+neighbours=4
+    python benchmarks/missed_distractors.py --family street --views 16 --transients video
+    python benchmarks/missed_distractors.py --family street --views 8 --transients video \
+        --config default+leave_out=1 --other
 
 One scene of the realism stand-in (``clearsplat.synth.realism``; seed, resolution and config
 as given) and its distractor ground truth. Every distractor Gaussian the filter keeps is put
@@ -32,7 +35,17 @@ in the first of these steps that lost it:
 
 Prints the totals, then per input view the distractor Gaussians, those missed, the view's
 widened margin and their steps, and with ``--view`` every candidate of that view with its round, scores, verification
-views and how many of its Gaussians are distractors. Counts only: the same on any machine.
+views and how many of its Gaussians are distractors.
+
+With ``--other``, also where the static Gaussians that the filter removes lie (the
+benchmark's *other removed*: every removed Gaussian whose pixel shows the static scene in its
+view's input image): along its own view's ray against the clean surface at its pixel (the first
+surface of the scene without transients, ``World.clean_depths``), *in front* by more than 5 % of
+its depth (a floater: depth between a transient and the surface behind it, as at a transient's
+silhouette), *at* it (static content) or *behind* it; Gaussians without a pixel apart. Under the
+``depth`` and ``all`` scenarios each view's depths are biased, which shifts that split.
+
+Counts only: the same on any machine.
 """
 
 from __future__ import annotations
@@ -127,6 +140,27 @@ def _steps(scene, result, truth, min_weight: float, margin: float,
     return step
 
 
+def split_by_clean_depth(scene, world, gaussians: np.ndarray, margin: float = 0.05) -> dict:
+    """Counts of ``gaussians`` ((M,) int) in front of, at and behind the clean surface at
+    their pixel of their own view, by more than ``margin`` of its depth; ``"no pixel"`` for
+    those without ``pixel_id``."""
+    ratio = np.full(gaussians.size, np.nan)
+    for v, cam in enumerate(scene.cameras):
+        sel = np.flatnonzero(scene.view_id[gaussians] == v)
+        if sel.size == 0:
+            continue
+        g = gaussians[sel]
+        pid = scene.pixel_id[g].astype(np.int64)
+        ok = pid >= 0
+        z = cam.to_camera(scene.gaussians.means[g[ok]])[:, 2]
+        ratio[sel[ok]] = z / world.clean_depths[v].ravel()[pid[ok]]
+    has = ~np.isnan(ratio)
+    return {"in front": int((ratio[has] < 1.0 - margin).sum()),
+            "at": int((np.abs(ratio[has] - 1.0) <= margin).sum()),
+            "behind": int((ratio[has] > 1.0 + margin).sum()),
+            "no pixel": int((~has).sum())}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--realism", default="plain")
@@ -135,14 +169,18 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", default="128x224", help="HxW")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--occlusion", default="medium", help="low, medium or high (make_world)")
+    p.add_argument("--transients", default="shots",
+                   help="shots or video (make_world: passers-by for several consecutive views)")
     p.add_argument("--config", default="default", help="PRESET[+key=value...]")
     p.add_argument("--view", type=int, action="append", default=[],
                    help="list this view's candidates (repeatable)")
+    p.add_argument("--other", action="store_true",
+                   help="also split the static Gaussians removed by the clean surface")
     args = p.parse_args(argv)
     h, w = (int(x) for x in args.resolution.lower().split("x"))
     config = parse_config(args.config)
     world = make_world(args.family, num_views=args.views, seed=args.seed, height=h, width=w,
-                       occlusion=args.occlusion)
+                       occlusion=args.occlusion, transients=args.transients)
     if parse_realism(args.realism):
         scene, truth = realistic_reconstruction(world, args.realism, seed=args.seed)
     else:       # the plain stand-in, as clearsplat bench builds it
@@ -178,6 +216,15 @@ def main(argv=None) -> int:
             print(f"  #{c.index} round {c.round}, range {c.range}: {c.gaussians.size:,} "
                   f"Gaussians, {int(truth[c.gaussians].sum()):,} distractor; {scores}; "
                   f"views {c.verify_views}; {c.reason}")
+    if args.other:
+        static = np.flatnonzero(~truth & ~result.keep)
+        n_static = int((~truth).sum())
+        print(f"\nother Gaussians removed: {static.size:,} "
+              f"({100 * static.size / max(n_static, 1):.2f} % of {n_static:,} static), "
+              "against the clean surface at their pixel:")
+        for name, count in split_by_clean_depth(scene, world, static).items():
+            print(f"  {name:10s} {count:7,}  ({100 * count / max(n_static, 1):.2f} % of the "
+                  "static Gaussians)")
     return 0
 
 

@@ -1,6 +1,6 @@
 """The diagnostic scripts of benchmarks/: missed_distractors.py (where a missed Gaussian lies
-against the static reference) and real_image_removals.py (what the real-image check removes
-beside the pasted object)."""
+against the static reference, and where removed static Gaussians lie against the clean surface)
+and real_image_removals.py (what the real-image check removes beside the pasted object)."""
 
 from __future__ import annotations
 
@@ -104,3 +104,22 @@ def test_bands_count_every_other_removed_pixel_by_its_distance_to_the_paste():
     for b in bands:
         assert b["count"] == int(((d > b["from"]) & (d <= b["to"])).sum())
         assert b["count"] == 0 or 0.0 < b["ratio"] < 2.0
+
+
+def test_removed_static_gaussians_are_split_by_the_clean_surface():
+    # On the clutter-free twin every Gaussian lies at the clean surface (the stand-in puts it
+    # at its pixel's depth); moved along its ray it lies in front of or behind it.
+    world = make_world("object", num_views=3, seed=0, height=32, width=48)
+    scene = reconstruct(world.cameras, world.clean_images, world.clean_depths, seed=0)
+    split = _script().split_by_clean_depth
+    rng = np.random.default_rng(0)
+    picked = np.sort(rng.choice(len(scene), size=60, replace=False))
+    means = scene.gaussians.means
+    factors = np.ones(picked.size)
+    factors[:20], factors[20:35] = 0.8, 1.2       # 20 % nearer, 20 % farther, the rest as is
+    for g, f in zip(picked, factors):
+        centre = scene.cameras[int(scene.view_id[g])].camera_to_world[:3, 3]
+        means[g] = centre + f * (means[g] - centre)
+    scene.pixel_id[picked[-5:]] = -1                # five without a pixel
+    got = split(scene, world, picked, 0.05)
+    assert got == {"in front": 20, "at": 20, "behind": 15, "no pixel": 5}
