@@ -157,8 +157,9 @@ def test_depth_scale_is_measured_against_scale_depths():
     index = ViewIndex(scene)
     ref = [np.asarray(d, np.float64) for d in world.clean_depths]
     near, _, _ = tolerant_reference(ref, ref, 0, depth_radius=1)
+    margins = [None] * scene.num_views      # each view's margin, as the test used it
     got = revealing_gaussians(scene, index, near, margin=0.02, align_scale=True,
-                              scale_depths=ref)
+                              scale_depths=ref, margins=margins)
     assert not np.array_equal(got, revealing_gaussians(scene, index, near, margin=0.02,
                                                        align_scale=True))
     depths, pixels = member_depths(scene, index)
@@ -169,6 +170,11 @@ def test_depth_scale_is_measured_against_scale_depths():
         behind = near[v].ravel()[pix]
         expected = (behind > 0) & (z / scale < (1.0 - margin) * behind)
         np.testing.assert_array_equal(got[members], expected)
+        assert margins[v] == margin
+    assert max(margins) > 0.02                   # the depth scenario widens some
+    fixed = [None] * scene.num_views
+    revealing_gaussians(scene, index, near, margin=0.02, margins=fixed)
+    assert fixed == [0.02] * scene.num_views     # without align_scale: the margin itself
     # the same depths for both: the default
     np.testing.assert_array_equal(
         revealing_gaussians(scene, index, near, margin=0.02, align_scale=True,

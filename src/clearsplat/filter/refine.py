@@ -333,8 +333,8 @@ class Refinement:
         test; None otherwise).
     margins : list of float, or None
         Per view, the margin of the last pass's depth test, widened by the view's depth noise
-        with ``depth_scale_align`` (:func:`revealing_gaussians`; with
-        ``refine="static-depth"``, else None): what ``verify_hidden_widen`` reads.
+        with ``depth_scale_align`` (:func:`revealing_gaussians`; None with ``refine="none"``):
+        what ``verify_hidden_widen`` reads.
     """
 
     revealing: np.ndarray | None
@@ -376,8 +376,8 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
-    measured = config.refine == "static-depth"
-    return Refinement(revealing, front, distances, in_front, margins if measured else None)
+    return Refinement(revealing, front, distances, in_front,
+                      None if revealing is None else margins)
 
 
 def _revealing(state, excl: list, images: list, raw: list, margins: list) -> tuple:
@@ -391,7 +391,7 @@ def _revealing(state, excl: list, images: list, raw: list, margins: list) -> tup
                                         margin=config.refine_margin,
                                         align_scale=config.depth_scale_align,
                                         scale_reach=config.depth_scale_reach,
-                                        workers=config.num_threads)
+                                        workers=config.num_threads, margins=margins)
         return revealing, None, None     # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
         return None, None, None
