@@ -1,6 +1,7 @@
 """The diagnostic scripts of benchmarks/: missed_distractors.py (where a missed Gaussian lies
-against the static reference, and where removed static Gaussians lie against the clean surface)
-and real_image_removals.py (what the real-image check removes beside the pasted object)."""
+against the static reference, and where removed static Gaussians lie against the clean surface),
+real_image_removals.py (what the real-image check removes beside the pasted object) and
+reference_reveal.py (what R_i^-i and a median over neighbours reveal behind a view's own)."""
 
 from __future__ import annotations
 
@@ -123,3 +124,27 @@ def test_removed_static_gaussians_are_split_by_the_clean_surface():
     scene.pixel_id[picked[-5:]] = -1                # five without a pixel
     got = split(scene, world, picked, 0.05)
     assert got == {"in front": 20, "at": 20, "behind": 15, "no pixel": 5}
+
+
+def test_reference_reveal_reads_both_references_at_each_gaussians_pixel():
+    from clearsplat.render import render
+    world = make_world("object", num_views=4, seed=0, height=32, width=48)
+    scene = reconstruct(world.cameras, world.clean_images, world.clean_depths, seed=0,
+                        depth_blur=0.0, depth_noise=0.0)
+    mod = _script("reference_reveal")
+    cam = scene.cameras[0]
+    g = np.flatnonzero((scene.view_id == 0) & (scene.pixel_id == 16 * 48 + 24))[0]
+    h = np.flatnonzero((scene.view_id == 0) & (scene.pixel_id == 16 * 48 + 20))[0]
+    centre = cam.camera_to_world[:3, 3]
+    scene.gaussians.means[g] = centre + 0.5 * (scene.gaussians.means[g] - centre)
+    excl = mod.expected_depth(render(scene, cam, keep=scene.view_id != 0))
+    median = mod.median_reference(scene, 0, [1, 2, 3])
+    for reference in (excl, median):    # halfway to the camera: revealed; on the surface: not
+        assert mod.revealed(scene, np.array([g, h]), 0, reference, 0.05).tolist() == [True,
+                                                                                      False]
+    # One neighbour: its own expected depth wherever it covers the pixel by more than half.
+    one = render(scene, cam, keep=scene.view_id == 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        want = np.where(one.alpha.ravel() > 0.5, one.depth.ravel() / one.alpha.ravel(), np.nan)
+    np.testing.assert_array_equal(mod.median_reference(scene, 0, [2]), want)
+    assert np.isnan(mod.median_reference(scene, 0, [])).all()

@@ -1,0 +1,113 @@
+"""How often a view's exclusion render reveals a farther surface behind its own Gaussians, and
+how often a per-pixel median over its most co-visible neighbours would.
+
+Usage::
+
+    python benchmarks/reference_reveal.py --views 16 --transients video
+    python benchmarks/reference_reveal.py --views 8 --neighbours 7 --transients shots
+
+The support condition and refinement ask whether removing view i's Gaussians reveals a
+surface farther than their own. R_i^-i composites every other view front to back, so a
+passer-by that other views also hold (the neighbouring frames of a video) stands in it and
+reveals nothing. This compares, per Gaussian of view i, ``z < (1 - margin) * d`` for two
+reference depths d at its pixel: R_i^-i's expected depth, and the median over the
+``--neighbours`` views that share most of view i's field of view (``C[j, i] + C[i, j]``,
+:func:`clearsplat.filter.neighbours.covisibility`) of each one's own render into camera i
+(where it covers the pixel, accumulated opacity above 0.5), for the distractor Gaussians
+(which should be revealed) and for a sample of the static ones (which should not). The plain
+stand-in (``clearsplat bench`` builds it so), seed and resolution as given. Counts only: the
+same on any machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+
+import numpy as np
+
+from clearsplat.filter.neighbours import covisibility
+from clearsplat.render import render
+from clearsplat.synth import make_world, reconstruct
+from clearsplat.synth.backbone import distractor_truth
+
+
+def expected_depth(result) -> np.ndarray:
+    """(H*W,) the render's depth divided by its accumulated opacity (NaN where none)."""
+    alpha = result.alpha.ravel()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(alpha > 0, result.depth.ravel() / alpha, np.nan)
+
+
+def median_reference(scene, view: int, others, min_alpha: float = 0.5) -> np.ndarray:
+    """(H*W,) per pixel of ``view``, the median over ``others`` of each view's own Gaussians
+    rendered into its camera (expected depth), counting a view only where its accumulated
+    opacity exceeds ``min_alpha``; NaN where none does."""
+    cam = scene.cameras[view]
+    stack = []
+    for j in others:
+        r = render(scene, cam, keep=scene.view_id == j)
+        stack.append(np.where(r.alpha.ravel() > min_alpha, expected_depth(r), np.nan))
+    if not stack:
+        return np.full(cam.height * cam.width, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN pixels stay NaN
+        return np.nanmedian(np.array(stack), axis=0)
+
+
+def revealed(scene, gaussians: np.ndarray, view: int, reference: np.ndarray,
+             margin: float) -> np.ndarray:
+    """(M,) bool: of ``gaussians`` (of ``view``, pixel-aligned), those in front of
+    ``reference`` ((H*W,), NaN: nothing there) at their pixel by more than ``margin``."""
+    z = scene.cameras[view].to_camera(scene.gaussians.means[gaussians])[:, 2]
+    d = reference[scene.pixel_id[gaussians]]
+    with np.errstate(invalid="ignore"):
+        return np.nan_to_num(z < (1.0 - margin) * d, nan=False).astype(bool)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--family", default="street")
+    p.add_argument("--views", type=int, default=16)
+    p.add_argument("--resolution", default="128x224", help="HxW")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--transients", default="video", help="shots or video (make_world)")
+    p.add_argument("--neighbours", type=int, default=7)
+    p.add_argument("--margin", type=float, default=0.05)
+    p.add_argument("--static-sample", type=int, default=5000,
+                   help="static Gaussians sampled per view")
+    args = p.parse_args(argv)
+    h, w = (int(x) for x in args.resolution.lower().split("x"))
+    world = make_world(args.family, num_views=args.views, seed=args.seed, height=h, width=w,
+                       transients=args.transients)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=args.seed)
+    truth = distractor_truth(scene, world)
+    shared = covisibility(scene)
+    shared = shared + shared.T
+    rng = np.random.default_rng(args.seed)
+    counts = {("distractor", "excl"): 0, ("distractor", "median"): 0,
+              ("static", "excl"): 0, ("static", "median"): 0}
+    totals = {"distractor": 0, "static": 0}
+    for i in range(scene.num_views):
+        own = scene.view_id == i
+        others = [j for j in np.argsort(-shared[i], kind="stable") if j != i][:args.neighbours]
+        excl = expected_depth(render(scene, scene.cameras[i], keep=~own))
+        median = median_reference(scene, i, others)
+        static = np.flatnonzero(own & ~truth)
+        static = rng.choice(static, size=min(args.static_sample, static.size), replace=False)
+        for kind, ids in (("distractor", np.flatnonzero(own & truth)), ("static", static)):
+            totals[kind] += ids.size
+            counts[kind, "excl"] += int(revealed(scene, ids, i, excl, args.margin).sum())
+            counts[kind, "median"] += int(revealed(scene, ids, i, median, args.margin).sum())
+    print(f"{args.family}, {args.transients}, {args.views} views at {w}x{h}, seed {args.seed}; "
+          f"a farther surface (by {args.margin:.0%}) revealed behind:")
+    for kind in ("distractor", "static"):
+        n = max(totals[kind], 1)
+        print(f"  {kind:10s} Gaussians ({totals[kind]:,}): R_i^-i "
+              f"{counts[kind, 'excl'] / n:.3f}, median of {args.neighbours} neighbours "
+              f"{counts[kind, 'median'] / n:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
