@@ -14,9 +14,9 @@ reference depths d at its pixel: R_i^-i's expected depth, and the median over th
 ``--neighbours`` views that share most of view i's field of view (``C[j, i] + C[i, j]``,
 :func:`clearsplat.filter.neighbours.covisibility`) of each one's own render into camera i
 (where it covers the pixel, accumulated opacity above 0.5), for the distractor Gaussians
-(which should be revealed) and for a sample of the static ones (which should not). The plain
-stand-in (``clearsplat bench`` builds it so), seed and resolution as given. Counts only: the
-same on any machine.
+(which should be revealed) and for a sample of the static ones (which should not); then per
+view, for its distractor Gaussians. The plain stand-in (``clearsplat bench`` builds it so),
+seed and resolution as given. Counts only: the same on any machine.
 """
 
 from __future__ import annotations
@@ -88,6 +88,7 @@ def main(argv=None) -> int:
     counts = {("distractor", "excl"): 0, ("distractor", "median"): 0,
               ("static", "excl"): 0, ("static", "median"): 0}
     totals = {"distractor": 0, "static": 0}
+    per_view = []
     for i in range(scene.num_views):
         own = scene.view_id == i
         others = [j for j in np.argsort(-shared[i], kind="stable") if j != i][:args.neighbours]
@@ -99,6 +100,10 @@ def main(argv=None) -> int:
             totals[kind] += ids.size
             counts[kind, "excl"] += int(revealed(scene, ids, i, excl, args.margin).sum())
             counts[kind, "median"] += int(revealed(scene, ids, i, median, args.margin).sum())
+        ids = np.flatnonzero(own & truth)
+        if ids.size:
+            per_view.append((i, ids.size, revealed(scene, ids, i, excl, args.margin).mean(),
+                             revealed(scene, ids, i, median, args.margin).mean()))
     print(f"{args.family}, {args.transients}, {args.views} views at {w}x{h}, seed {args.seed}; "
           f"a farther surface (by {args.margin:.0%}) revealed behind:")
     for kind in ("distractor", "static"):
@@ -106,6 +111,9 @@ def main(argv=None) -> int:
         print(f"  {kind:10s} Gaussians ({totals[kind]:,}): R_i^-i "
               f"{counts[kind, 'excl'] / n:.3f}, median of {args.neighbours} neighbours "
               f"{counts[kind, 'median'] / n:.3f}")
+    print(f"\n{'view':>4} {'distractor':>10} {'R_i^-i':>7} {'median':>7}")
+    for i, n, a, b in per_view:
+        print(f"{i:>4} {n:>10,} {a:>7.3f} {b:>7.3f}")
     return 0
 
 
