@@ -32,11 +32,10 @@ from clearsplat.synth import make_world, reconstruct
 from clearsplat.synth.backbone import distractor_truth
 
 
-def expected_depth(result) -> np.ndarray:
-    """(H*W,) the render's depth divided by its accumulated opacity (NaN where none)."""
-    alpha = result.alpha.ravel()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(alpha > 0, result.depth.ravel() / alpha, np.nan)
+def covered_depth(result, min_alpha: float = 0.0) -> np.ndarray:
+    """(H*W,) the render's expected depth where its accumulated opacity exceeds
+    ``min_alpha``, NaN elsewhere."""
+    return np.where(result.alpha.ravel() > min_alpha, result.depth.ravel(), np.nan)
 
 
 def median_reference(scene, view: int, others, min_alpha: float = 0.5) -> np.ndarray:
@@ -46,8 +45,7 @@ def median_reference(scene, view: int, others, min_alpha: float = 0.5) -> np.nda
     cam = scene.cameras[view]
     stack = []
     for j in others:
-        r = render(scene, cam, keep=scene.view_id == j)
-        stack.append(np.where(r.alpha.ravel() > min_alpha, expected_depth(r), np.nan))
+        stack.append(covered_depth(render(scene, cam, keep=scene.view_id == j), min_alpha))
     if not stack:
         return np.full(cam.height * cam.width, np.nan)
     with warnings.catch_warnings():
@@ -92,7 +90,7 @@ def main(argv=None) -> int:
     for i in range(scene.num_views):
         own = scene.view_id == i
         others = [j for j in np.argsort(-shared[i], kind="stable") if j != i][:args.neighbours]
-        excl = expected_depth(render(scene, scene.cameras[i], keep=~own))
+        excl = covered_depth(render(scene, scene.cameras[i], keep=~own))
         median = median_reference(scene, i, others)
         static = np.flatnonzero(own & ~truth)
         static = rng.choice(static, size=min(args.static_sample, static.size), replace=False)

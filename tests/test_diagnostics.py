@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -137,14 +138,21 @@ def test_reference_reveal_reads_both_references_at_each_gaussians_pixel():
     h = np.flatnonzero((scene.view_id == 0) & (scene.pixel_id == 16 * 48 + 20))[0]
     centre = cam.camera_to_world[:3, 3]
     scene.gaussians.means[g] = centre + 0.5 * (scene.gaussians.means[g] - centre)
-    excl = mod.expected_depth(render(scene, cam, keep=scene.view_id != 0))
+    excl = mod.covered_depth(render(scene, cam, keep=scene.view_id != 0))
     median = mod.median_reference(scene, 0, [1, 2, 3])
     for reference in (excl, median):    # halfway to the camera: revealed; on the surface: not
         assert mod.revealed(scene, np.array([g, h]), 0, reference, 0.05).tolist() == [True,
                                                                                       False]
-    # One neighbour: its own expected depth wherever it covers the pixel by more than half.
+    # One neighbour: its own expected depth (the render's depth, already divided by its
+    # opacity) wherever it covers the pixel by more than half.
     one = render(scene, cam, keep=scene.view_id == 2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        want = np.where(one.alpha.ravel() > 0.5, one.depth.ravel() / one.alpha.ravel(), np.nan)
+    want = np.where(one.alpha.ravel() > 0.5, one.depth.ravel(), np.nan)
     np.testing.assert_array_equal(mod.median_reference(scene, 0, [2]), want)
+    # Two neighbours: their mean where both cover, the one that covers elsewhere.
+    other = render(scene, cam, keep=scene.view_id == 3)
+    both = np.vstack([want, np.where(other.alpha.ravel() > 0.5, other.depth.ravel(), np.nan)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # pixels neither covers: NaN
+        mean = np.nanmean(both, axis=0)
+    np.testing.assert_allclose(mod.median_reference(scene, 0, [2, 3]), mean, rtol=1e-6)
     assert np.isnan(mod.median_reference(scene, 0, [])).all()
