@@ -500,25 +500,22 @@ def seen_by_verifiers(state, candidates: list, margin: float,
     """
     scene = state.scene
     means = scene.gaussians.means
-    widened = None
-    if view_margins is not None:
-        widened = np.array([margin if m is None else max(margin, m) for m in view_margins])
+    # Per view, the margin its Gaussians and its surface are judged with.
+    per_view = np.array([margin if m is None else max(margin, m)
+                         for m in (view_margins or [None] * scene.num_views)])
     own: dict = {}
     for c in candidates:
         if c.expanded is None or c.expanded.size == 0 or not c.verify_views:
             continue
         pts = means[c.expanded]
-        ratio = np.full(c.expanded.size, 1.0 + margin)
-        if widened is not None:
-            ratio = 1.0 + widened[scene.view_id[c.expanded]]
+        theirs = per_view[scene.view_id[c.expanded]]
         seen = np.zeros(c.expanded.size, dtype=bool)
         for j in c.verify_views:
             if j not in own:
                 own[j] = own_depth_map(scene, state.index, j)
             pix, z = centre_pixels(scene.cameras[j], pts)
             inside = pix >= 0
-            limit = ratio[inside] if widened is None else np.maximum(ratio[inside],
-                                                                     1.0 + widened[j])
+            limit = 1.0 + np.maximum(theirs[inside], per_view[j])
             seen[inside] |= z[inside] <= limit * own[j][pix[inside]]
         hidden = int(np.count_nonzero(~seen))
         if hidden:
