@@ -34,7 +34,7 @@ in the first of these steps that lost it:
   surface of each of its verifying views (``verify_hidden``).
 
 Prints the totals, then per input view the distractor Gaussians, those missed, the view's
-widened margin and their steps, and with ``--view`` every candidate of that view with its round, scores, verification
+depth scale and widened margin and their steps, and with ``--view`` every candidate of that view with its round, scores, verification
 views and how many of its Gaussians are distractors.
 
 With ``--other``, also where the static Gaussians that the filter removes lie (the
@@ -76,7 +76,7 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
     With ``align_scale`` (``FilterConfig.depth_scale_align``) those in front by more than
     ``margin`` are split as the first refinement pass judges them: each view's depths divided
     by their median ratio to this reference, its margin widened by their spread; ``margins``
-    (a dict) then receives each such view's widened margin."""
+    (a dict) then receives each such view's ``(scale, widened margin)``."""
     names = np.empty(int(lost.sum()), dtype=object)
     where = np.flatnonzero(lost)
     own = scene.view_id
@@ -100,7 +100,7 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
             scale, spread = view_depth_scales([z_all], [r_all])[0]
             widened = widened_margin(margin, spread)
             if margins is not None:
-                margins[int(v)] = widened
+                margins[int(v)] = (scale, widened)
             za = z / scale
             front = np.where(za >= (1 - margin) * r,
                              "refined away: in front, not at its view's scale",
@@ -196,17 +196,19 @@ def main(argv=None) -> int:
           f"({int(missed.sum()):,} of {int(truth.sum()):,} distractor Gaussians missed)")
     for name, count in Counter(step[missed]).most_common():
         print(f"  {name:44s} {count:7,}")
-    # margin: the view's margin widened by its depth noise, as the first refinement pass
-    # measures it (views with a distractor Gaussian refined away, with depth_scale_align).
-    print(f"\n{'view':>4} {'distractor':>10} {'missed':>7} {'margin':>7}  steps")
+    # scale, margin: the view's depth ratio to the static reference and its margin widened by
+    # its depth noise, as the first refinement pass measures them (views with a distractor
+    # Gaussian refined away, with depth_scale_align).
+    print(f"\n{'view':>4} {'distractor':>10} {'missed':>7} {'scale':>6} {'margin':>7}  steps")
     for v in range(scene.num_views):
         own = scene.view_id == v
         if not (truth & own).any():
             continue
         steps = Counter(step[missed & own])
-        wide = f"{100 * margins[v]:.1f} %" if v in margins else "-"
+        scale, wide = ((f"{margins[v][0]:.3f}", f"{100 * margins[v][1]:.1f} %")
+                       if v in margins else ("-", "-"))
         print(f"{v:>4} {int((truth & own).sum()):>10,} {int((missed & own).sum()):>7,} "
-              f"{wide:>7}  " + ", ".join(f"{k} {c:,}" for k, c in steps.most_common()))
+              f"{scale:>6} {wide:>7}  " + ", ".join(f"{k} {c:,}" for k, c in steps.most_common()))
     for v in args.view:
         print(f"\ncandidates of view {v}:")
         for c in result.candidates:

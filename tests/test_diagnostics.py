@@ -80,9 +80,9 @@ def test_in_front_is_split_as_the_first_refinement_pass_judges_it():
     names = _script()._against_reference(scene, ViewIndex(scene), lost,
                                           np.zeros(len(scene), dtype=bool), 0.02,
                                           align_scale=True, margins=margins)
-    # The view's margin as measured with the three moved Gaussians among its own.
-    _, after = view_depth_scales([cam.to_camera(means[own])[:, 2]], [ref])[0]
-    assert margins == {0: pytest.approx(1.0 - np.exp(-2.5 * after))}
+    # The view's scale and margin as measured with the three moved Gaussians among its own.
+    s_after, after = view_depth_scales([cam.to_camera(means[own])[:, 2]], [ref])[0]
+    assert margins == {0: (pytest.approx(s_after), pytest.approx(1.0 - np.exp(-2.5 * after)))}
     got = {picks[g]: name for g, name in zip(np.flatnonzero(lost).tolist(), names)}
     assert got == {0: "refined away: in front, not at its view's scale",
                    1: "refined away: within its view's widened margin",
