@@ -378,6 +378,24 @@ class FilterConfig:
         i's own, and which do not verify view i. For video: a passer-by who stays for a few
         consecutive frames is in the neighbouring frames' predictions too, where R_i^-i would
         show him instead of the surface behind. 0: the paper (only view i's own).
+    reveal_reference : {"composite", "quantile"}
+        What the proposal (similarity and support) and refinement compare view i with.
+        ``"composite"``: the paper's R_i^-i. ``"quantile"``: the reveal reference
+        (:mod:`clearsplat.filter.reveal`): the ``reveal_views`` views that share the most of
+        view i's field of view, each rendered into camera i on its own, and per pixel the one
+        at the ``reveal_quantile`` of their depths (where at least ``reveal_min_views`` of
+        them cover it; R_i^-i elsewhere). Transients stand in front of the static surface, so
+        the farther quantile still shows it where several neighbouring frames hold the same
+        passer-by (video; the ``video`` preset). Verification keeps R_i^-i.
+    reveal_views : int
+        Neighbours the reveal reference renders (``reveal_reference="quantile"``), among those
+        that R_i^-i holds.
+    reveal_quantile : float in [0, 1]
+        Rank of the reveal reference's depth among the covering neighbours', 0 the nearest,
+        1 the farthest.
+    reveal_min_views : int
+        Fewest covering neighbours for a pixel to take the reveal reference rather than
+        R_i^-i.
     verify_views : {"auto", "centres", "mutual"}
         How each view's verification views V_i are chosen. ``"auto"``: ``"mutual"`` where
         ``neighbours`` (as ``"auto"`` resolves it) bounds the neighbourhoods, ``"centres"``
@@ -462,6 +480,10 @@ class FilterConfig:
     verify_hidden: float | None = 0.05
     verify_hidden_widen: bool = True
     leave_out: int = 0
+    reveal_reference: Literal["composite", "quantile"] = "composite"
+    reveal_views: int = 7
+    reveal_quantile: float = 0.75
+    reveal_min_views: int = 4
     backend: Literal["auto", "native", "gsplat", "torch"] = "auto"
 
     def __post_init__(self):
@@ -494,8 +516,9 @@ class FilterConfig:
         (``FilterConfig.preset("paper", checkpoint="/path/to/dinov3")``); ``"paper-local"`` is
         the paper's procedure with the weight-free ``"local"`` features. ``"exact"`` is the
         default without its approximations for dense captures (every view in every camera's
-        renders); ``"fast"`` trades recall for time (one round, four neighbours per camera;
-        ``docs/method.md``, "The fast preset").
+        renders); ``"video"`` is for the frames of a video (``reveal_reference="quantile"``;
+        ``docs/method.md``, "Video"); ``"fast"`` trades recall for time (one round, four
+        neighbours per camera; ``docs/method.md``, "The fast preset").
         """
         if name not in PRESETS:
             raise ClearsplatError(f"unknown preset {name!r}; choose one of "
@@ -585,6 +608,10 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "verify_hidden": FieldSpec("number", 0.0, optional=True),
     "verify_hidden_widen": FieldSpec("bool"),
     "leave_out": FieldSpec("integer", 0),
+    "reveal_reference": FieldSpec("choice", choices=("composite", "quantile")),
+    "reveal_views": FieldSpec("integer", 1),
+    "reveal_quantile": FieldSpec("number", 0.0, 1.0),
+    "reveal_min_views": FieldSpec("integer", 1),
     "backend": FieldSpec("choice", choices=("auto", "native", "gsplat", "torch")),
 }
 
@@ -622,6 +649,9 @@ PRESETS = {
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").
     "exact": FilterConfig(neighbours=None, verify_views="centres"),
+    # The frames of a video: passers-by stay for several consecutive frames, so the proposal
+    # and refinement compare each view with the reveal reference (docs/method.md, "Video").
+    "video": FilterConfig(reveal_reference="quantile"),
     # Faster than the default, finding less: one round, and each camera's renders hold the
     # four views that share the most of its field of view (docs/method.md, "The fast preset").
     "fast": FilterConfig(rounds=1, neighbours=4),

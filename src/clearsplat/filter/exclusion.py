@@ -4,6 +4,9 @@ Paper, "Distractor Proposal": R_i renders every Gaussian from camera i, R_i^-i e
 but those predicted from view i. Both come from one compositing pass per view
 (``render_pair``). A later round takes the round before's renders and composites again only
 the tiles its removals touched; elsewhere they are unchanged, so the result is exact.
+
+With ``reveal_reference="quantile"`` each view also gets its reveal reference
+(:mod:`.reveal`), which the proposal and refinement read in place of R_i^-i.
 """
 
 from __future__ import annotations
@@ -11,6 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .neighbours import covisibility
+from .reveal import reveal_neighbours, reveal_reference
 
 __all__ = ["ExclusionRenders", "exclusion_renders"]
 
@@ -30,12 +36,25 @@ class ExclusionRenders:
         (the choice of verification views V_i).
     any_visible : bool
         Whether any Gaussian is in front of any camera.
+    reveal : list of RenderResult, or None
+        Per view, its reveal reference (``reveal_reference="quantile"``, :mod:`.reveal`);
+        None: R_i^-i is the reference.
+    reveal_valid : list of (H, W) bool, or None
+        Per view, where the reveal reference is not R_i^-i.
     """
 
     full: list
     excl: list
     seen: np.ndarray
     any_visible: bool
+    reveal: list | None = None
+    reveal_valid: list | None = None
+
+    @property
+    def reference(self) -> list:
+        """What the proposal and refinement compare with: the reveal references where made,
+        else R_i^-i."""
+        return self.excl if self.reveal is None else self.reveal
 
 
 def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
@@ -45,8 +64,13 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
     touched (filled as the views are read); there only is anything composited again.
     """
     scene, views, own = state.scene, state.views, state.own
+    config = state.config
     seen = np.zeros((scene.num_views, scene.num_views), dtype=np.int64)
     full, excl = [], []
+    reveal = valid = shared = None
+    if config.reveal_reference == "quantile":
+        c = covisibility(scene)
+        shared, reveal, valid = c + c.T, [], []
     any_visible = False
     for i in range(scene.num_views):
         pv = views[i]
@@ -62,8 +86,28 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         full.append(r_full)
         excl.append(r_excl)
         state.lap("exclusion_renders")
+        if reveal is not None:
+            ref, where = _reveal(state, shared, i, r_excl)
+            reveal.append(ref)
+            valid.append(where)
+            state.lap("reveal")
         state.report("render", i + 1, scene.num_views)
-    return ExclusionRenders(full, excl, seen, bool(any_visible))
+    return ExclusionRenders(full, excl, seen, bool(any_visible), reveal, valid)
+
+
+def _reveal(state, shared: np.ndarray, i: int, r_excl):
+    """View ``i``'s reveal reference and where it is not R_i^-i
+    (:func:`~clearsplat.filter.reveal.reveal_reference`), from the neighbours its renders hold
+    (the view plan's neighbourhood) and R_i^-i leaves in."""
+    allowed = ~state.left_out[i]
+    if state.plan is not None and state.plan.hoods is not None:
+        allowed = allowed & state.plan.hoods[i]
+    config = state.config
+    others = reveal_neighbours(shared, i, count=config.reveal_views, allowed=allowed)
+    view_id = state.scene.view_id
+    return reveal_reference(state.views[i], [view_id == j for j in others], r_excl,
+                            quantile=config.reveal_quantile,
+                            min_views=config.reveal_min_views)
 
 
 def _update_pair(pv, own, tiles, previous, i: int):

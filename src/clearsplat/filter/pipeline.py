@@ -7,6 +7,7 @@ procedure", for every step and every option) on one scene and returns a
 =====================================  ==============================================
 prepare views                          :mod:`.backend` (the renderer behind the stages)
 exclusion renders R_i, R_i^-i          :mod:`.exclusion`
+reveal reference (an option)           :mod:`.reveal`
 proposals (s_i, g_i, B_i, M_k)         :mod:`.proposal`
 regions to Gaussians (C_k)             :mod:`.association`
 refinement                             :mod:`.refine`
@@ -154,7 +155,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         state.views.release()
         return FilterResult(np.ones(len(scene), bool), [], [], state.clock.timings, config,
                             [msg]), None
-    images = aligned_images(scene.images, renders.excl, config)
+    images = aligned_images(scene.images, renders.reference, config)
     proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
     region_map = RegionMap(state)
     regions = [r for p in proposals for r in p.regions]

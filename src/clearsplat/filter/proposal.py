@@ -217,7 +217,8 @@ def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
     list of ViewProposal, one per view: s_i, the support g_i, the ranges B_i^1 and B_i^2 and
     their regions M_k.
     """
-    config, excl, full = state.config, renders.excl, renders.full
+    # R_i^-i, or the reveal reference that stands in for it (``reveal_reference``).
+    config, excl, full = state.config, renders.reference, renders.full
     sims = []
     # A few views at a time: two stacks of every view's image would hold 2 x V images at
     # once (0.18 GB at 64 views of 256x448); the similarity of a pair does not depend on

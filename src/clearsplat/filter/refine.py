@@ -371,7 +371,7 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
     """
     config = state.config
     margins = [None] * state.num_views
-    revealing, distances, in_front = _revealing(state, renders.excl, images, raw, margins)
+    revealing, distances, in_front = _revealing(state, renders, images, raw, margins)
     front = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
@@ -380,12 +380,13 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
                       None if revealing is None else margins)
 
 
-def _revealing(state, excl: list, images: list, raw: list, margins: list) -> tuple:
+def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     """(N,) bool: the Gaussians in front of the reference of ``config.refine``; with
     ``color_explained``, each Gaussian's colour distance to the last static reference; with
     ``expand_color=False``, the first of them by the depth test alone (else None each). The
     last pass's margins go to ``margins`` (per view)."""
     config = state.config
+    excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
         revealing = revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
                                         margin=config.refine_margin,
@@ -410,7 +411,9 @@ def _revealing(state, excl: list, images: list, raw: list, margins: list) -> tup
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
-        depths, rgbs = static_reference(state, excl, proposed)
+        depths, rgbs = static_reference(state, renders.excl, proposed)
+        if renders.reveal is not None:
+            _overlay_reveal(depths, rgbs, renders)
         reference = _tolerant(state, depths, rgbs, radii)
         if explain and last:   # measured once, read by both tests
             _, lo, hi = reference
@@ -446,6 +449,18 @@ def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, lis
         covered = static.alpha >= _COLOR_MIN_ALPHA
         reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
     return reference, reference_rgb
+
+
+def _overlay_reveal(depths: list, rgbs: list, renders) -> None:
+    """The static references (``depths``, ``rgbs``, per view, changed in place) replaced by the
+    reveal reference wherever it applies (``reveal_reference="quantile"``): it outvotes the
+    other views' passers-by, proposed or not, without leaving them out."""
+    for i, (ref, valid) in enumerate(zip(renders.reveal, renders.reveal_valid)):
+        if not valid.any():
+            continue
+        depths[i] = np.where(valid, ref.depth, depths[i])
+        color = np.where((ref.alpha >= _COLOR_MIN_ALPHA)[..., None], ref.rgb, np.nan)
+        rgbs[i] = np.where(valid[..., None], color, rgbs[i])
 
 
 def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:

@@ -1,0 +1,98 @@
+"""The reveal reference: what lies behind view i's Gaussians, robust to the other views'
+passers-by (``FilterConfig.reveal_reference="quantile"``).
+
+The paper asks R_i^-i, every other view composited front to back, what surface removing view
+i's Gaussians reveals. A passer-by held by any other view stands in front in that composite;
+in a video the neighbouring frames hold the same person at nearly the same place, so
+R_i^-i shows him instead of the wall behind and reveals nothing (docs/method.md, "Video").
+
+Here each of the ``reveal_views`` other views that share the most of view i's field of view
+(:func:`clearsplat.filter.neighbours.covisibility`, ``C[i, j] + C[j, i]``) is rendered into
+camera i on its own. At each pixel the views that cover it (accumulated opacity above 0.5)
+give one expected depth each; transients only ever stand in front of the static surface, so
+the reference is the view at rank ``floor(q (n - 1))`` of the n depths in ascending order
+(``reveal_quantile`` q): with q = 0.75 it still shows the surface when up to three quarters
+of the covering views hold something in front, and is not fooled by a quarter that see past
+an edge. Its colour, opacity and depth are that view's. Where fewer than
+``reveal_min_views`` views cover the pixel the evidence is too thin to outvote anything and
+the reference is R_i^-i itself.
+
+The proposal (similarity and support), the photometric alignment and refinement read this
+reference; verification keeps R_i^-i, whose incremental renders it needs. Refinement's static
+reference is R_i^-i without the proposed Gaussians where the reference falls back to R_i^-i,
+and the reference itself elsewhere: it outvotes the other views' passers-by already.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..render import RenderResult
+
+__all__ = ["MIN_ALPHA", "quantile_layers", "reveal_neighbours", "reveal_reference"]
+
+#: A neighbour covers a pixel where its own render's accumulated opacity exceeds this.
+MIN_ALPHA = 0.5
+
+
+def reveal_neighbours(shared: np.ndarray, view: int, *, count: int,
+                      allowed: np.ndarray | None = None) -> list[int]:
+    """The ``count`` views that share the most with ``view`` (``shared[view, j]``, ties to the
+    lower index), among those ``allowed`` ((V,) bool; None: every view), never ``view``."""
+    candidates = [j for j in range(shared.shape[0])
+                  if j != view and (allowed is None or allowed[j])]
+    candidates.sort(key=lambda j: (-shared[view, j], j))
+    return candidates[:count]
+
+
+def quantile_layers(depth: np.ndarray, alpha: np.ndarray, *, quantile: float,
+                    min_views: int, min_alpha: float = MIN_ALPHA) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, which layer the reference takes.
+
+    Parameters
+    ----------
+    depth, alpha : (K, H, W) float32
+        The expected depth and accumulated opacity of K renders of the same camera.
+    quantile : float in [0, 1]
+    min_views : int
+        Fewest covering layers (``alpha > min_alpha``) for a pixel to take one.
+
+    Returns
+    -------
+    layer : (H, W) int64
+        The covering layer at rank ``floor(quantile * (n - 1))`` of the n covering layers'
+        depths in ascending order (ties: the lower layer first).
+    valid : (H, W) bool
+        ``n >= min_views`` (and n >= 1): where ``layer`` applies.
+    """
+    covered = alpha > min_alpha
+    n = covered.sum(axis=0)
+    key = np.where(covered, depth, np.inf)
+    order = np.argsort(key, axis=0, kind="stable")
+    # The small epsilon keeps an exact product such as 0.75 * 4 = 3 from rounding down.
+    rank = np.floor(quantile * np.maximum(n - 1, 0) + 1e-9).astype(np.int64)
+    layer = np.take_along_axis(order, rank[None], axis=0)[0]
+    return layer, n >= max(min_views, 1)
+
+
+def reveal_reference(view, layers: list, fallback: RenderResult, *, quantile: float,
+                     min_views: int) -> tuple[RenderResult, np.ndarray]:
+    """View i's reveal reference: its prepared view ``view`` rendered with each mask of
+    ``layers`` ((N,) bool each: one neighbour's Gaussians) on its own, the layer that
+    :func:`quantile_layers` picks per pixel, and ``fallback`` (R_i^-i) where it picks none.
+
+    Returns the reference and (H, W) bool, where it is not ``fallback``'s."""
+    if not layers:
+        return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
+    renders = [view.render(keep=keep) for keep in layers]
+    depth = np.stack([r.depth for r in renders])
+    alpha = np.stack([r.alpha for r in renders])
+    layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
+    rows, cols = np.indices(layer.shape)
+    rgb = np.stack([r.rgb for r in renders])[layer, rows, cols]
+    out = RenderResult(np.where(valid[..., None], rgb, fallback.rgb).astype(np.float32),
+                       np.where(valid, alpha[layer, rows, cols], fallback.alpha)
+                       .astype(np.float32),
+                       np.where(valid, depth[layer, rows, cols], fallback.depth)
+                       .astype(np.float32))
+    return out, valid

@@ -1,0 +1,187 @@
+"""The reveal reference (``FilterConfig.reveal_reference="quantile"``): the per-pixel rank
+against a loop and closed cases, the renders it is made of, and the filter with it."""
+
+import numpy as np
+import pytest
+
+from clearsplat.features import get_extractor
+from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter.neighbours import covisibility
+from clearsplat.filter.reveal import (MIN_ALPHA, quantile_layers, reveal_neighbours,
+                                      reveal_reference)
+from clearsplat.metrics import removal_stats
+from clearsplat.render import RenderResult, prepare, render
+from clearsplat.synth import distractor_truth, make_world, reconstruct
+
+
+def _layers_by_loop(depth, alpha, quantile, min_views):
+    """Slow reference: per pixel, the covering layers sorted by (depth, layer), and the one at
+    rank floor(quantile (n - 1)), written out with integer arithmetic where it is exact."""
+    k, h, w = depth.shape
+    layer = np.zeros((h, w), np.int64)
+    valid = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            cover = sorted((float(depth[l, y, x]), l) for l in range(k)
+                           if alpha[l, y, x] > MIN_ALPHA)
+            if not cover:
+                continue
+            rank = int(quantile * (len(cover) - 1) + 1e-9)
+            layer[y, x] = cover[rank][1]
+            valid[y, x] = len(cover) >= min_views
+    return layer, valid
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("quantile,min_views", [(0.75, 4), (0.5, 1), (0.0, 2), (1.0, 3)])
+def test_quantile_layers_match_a_loop(seed, quantile, min_views):
+    rng = np.random.default_rng(seed)
+    k, h, w = 7, 9, 11
+    # Few distinct depths, so that ties occur and their order is tested too.
+    depth = rng.integers(1, 6, size=(k, h, w)).astype(np.float32)
+    # Each layer covers about a third of the pixels: every count from 0 to 7 occurs.
+    alpha = (rng.uniform(0.0, 1.0, size=(k, h, w))
+             * (rng.uniform(size=(k, h, w)) < 0.6)).astype(np.float32)
+    layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
+    ref_layer, ref_valid = _layers_by_loop(depth, alpha, quantile, min_views)
+    np.testing.assert_array_equal(valid, ref_valid)
+    assert valid.any() and (~valid).any()
+    np.testing.assert_array_equal(layer[valid], ref_layer[valid])
+
+
+def test_quantile_layers_closed_cases():
+    # One pixel, four layers at depths 4, 1, 3, 2 (layers 0..3), all covering.
+    depth = np.array([4, 1, 3, 2], np.float32).reshape(4, 1, 1)
+    alpha = np.ones((4, 1, 1), np.float32)
+    pick = lambda q, a=alpha, m=1: quantile_layers(depth, a, quantile=q, min_views=m)
+    assert pick(0.0)[0][0, 0] == 1        # the nearest: depth 1
+    assert pick(0.5)[0][0, 0] == 3        # rank floor(1.5) = 1: depth 2
+    assert pick(0.75)[0][0, 0] == 2       # rank floor(2.25) = 2: depth 3
+    assert pick(1.0)[0][0, 0] == 0        # the farthest: depth 4
+    # The farthest layer does not cover: of 1, 2, 3 the 0.75 rank is floor(1.5) = 1, depth 2.
+    partly = alpha.copy()
+    partly[0] = MIN_ALPHA                 # not above the threshold
+    assert pick(0.75, partly)[0][0, 0] == 3
+    assert pick(0.75, partly, 3)[1][0, 0] and not pick(0.75, partly, 4)[1][0, 0]
+    assert not pick(0.75, np.zeros_like(alpha))[1][0, 0]
+
+
+def test_reveal_neighbours_rank_by_shared_view_and_respect_allowed():
+    shared = np.array([[9, 5, 7, 5],
+                       [5, 9, 1, 2],
+                       [7, 1, 9, 3],
+                       [5, 2, 3, 9]], float)
+    assert reveal_neighbours(shared, 0, count=3) == [2, 1, 3]     # 1 and 3 tie: lower first
+    assert reveal_neighbours(shared, 0, count=2) == [2, 1]
+    allowed = np.array([True, False, True, True])
+    assert reveal_neighbours(shared, 0, count=3, allowed=allowed) == [2, 3]
+    assert reveal_neighbours(shared, 1, count=5) == [0, 3, 2]
+
+
+@pytest.fixture(scope="module")
+def video():
+    world = make_world("street", num_views=8, seed=0, height=64, width=112,
+                       transients="video")
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    return scene, distractor_truth(scene, world)
+
+
+def test_reveal_reference_takes_each_pixel_from_one_neighbours_own_render(video):
+    scene, _ = video
+    view = prepare(scene, scene.cameras[3])
+    others = [2, 4, 1, 5, 6]
+    layers = [scene.view_id == j for j in others]
+    fallback = render(scene, scene.cameras[3], keep=scene.view_id != 3)
+    out, valid = reveal_reference(view, layers, fallback, quantile=0.75, min_views=4)
+    assert valid.any() and (~valid).any()
+    singles = [render(scene, scene.cameras[3], keep=m) for m in layers]
+    depth = np.stack([r.depth for r in singles])
+    alpha = np.stack([r.alpha for r in singles])
+    for y, x in np.ndindex(valid.shape):
+        cover = sorted((depth[l, y, x], l) for l in range(len(others))
+                       if alpha[l, y, x] > MIN_ALPHA)
+        src = singles[cover[int(0.75 * (len(cover) - 1))][1]] if len(cover) >= 4 else fallback
+        assert valid[y, x] == (len(cover) >= 4)
+        for a, b in zip(out, src):
+            np.testing.assert_array_equal(a[y, x], b[y, x])
+    assert isinstance(out, RenderResult) and out.rgb.dtype == np.float32
+    # Fewer neighbours than min_views: R_i^-i itself, every pixel.
+    same, valid = reveal_reference(view, layers[:3], fallback, quantile=0.75, min_views=4)
+    assert not valid.any()
+    for a, b in zip(same, fallback):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_the_quantile_reference_shows_the_surface_behind_a_passer_by_held_by_neighbours(video):
+    # In a video the passer-by of view i stands in his neighbouring frames too: R_i^-i shows
+    # him, the quantile reference the street behind, farther than his Gaussians.
+    scene, truth = video
+    shared = covisibility(scene)
+    shared = shared + shared.T
+    revealed = {"composite": 0, "quantile": 0}
+    total = 0
+    for i in range(scene.num_views):
+        ids = np.flatnonzero((scene.view_id == i) & truth)
+        if ids.size == 0:
+            continue
+        total += ids.size
+        cam = scene.cameras[i]
+        excl = render(scene, cam, keep=scene.view_id != i)
+        others = reveal_neighbours(shared, i, count=7)
+        robust, _ = reveal_reference(prepare(scene, cam),
+                                     [scene.view_id == j for j in others],
+                                     excl, quantile=0.75, min_views=4)
+        z = cam.to_camera(scene.gaussians.means[ids])[:, 2]
+        for name, ref in (("composite", excl), ("quantile", robust)):
+            d = ref.depth.ravel()[scene.pixel_id[ids]]
+            revealed[name] += int(np.count_nonzero(z < 0.95 * d))
+    assert total > 0
+    assert revealed["quantile"] > 1.5 * revealed["composite"]
+
+
+def test_the_video_preset_finds_the_passers_by_the_default_misses(video):
+    scene, truth = video
+    extractor = get_extractor("local")
+    default = removal_stats(filter_distractors(scene, extractor=extractor).removed, truth)
+    robust = filter_distractors(scene, config=FilterConfig.preset("video"),
+                                extractor=extractor)
+    stats = removal_stats(robust.removed, truth)
+    assert stats["recall"] > default["recall"] + 0.3
+    assert stats["static_removed"] < 0.03
+    assert robust.timings["proposal.reveal"] > 0
+
+
+def test_the_torch_backend_makes_the_native_decisions(video):
+    pytest.importorskip("torch")
+    scene, _ = video
+    extractor = get_extractor("local")
+    native = filter_distractors(scene, config=FilterConfig.preset("video"), extractor=extractor)
+    config = FilterConfig.preset("video", backend="torch")
+    result = filter_distractors(scene, config=config, extractor=extractor)
+    assert native.removed.any()
+    np.testing.assert_array_equal(result.removed, native.removed)
+    assert ([(c.view, c.range, c.accepted, c.reason, c.gaussians.tolist())
+             for c in result.candidates]
+            == [(c.view, c.range, c.accepted, c.reason, c.gaussians.tolist())
+                for c in native.candidates])
+
+
+def test_below_min_views_neighbours_the_output_is_the_composite_one():
+    # At four views each view has three others: with reveal_min_views=4 no pixel takes the
+    # reveal reference, and every decision is the default's.
+    world = make_world("object", num_views=4, seed=1, height=48, width=80)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
+    extractor = get_extractor("local")
+    base = filter_distractors(scene, extractor=extractor)
+    same = filter_distractors(scene, config=FilterConfig(reveal_reference="quantile"),
+                              extractor=extractor)
+    assert base.removed.any()
+    np.testing.assert_array_equal(same.keep, base.keep)
+    assert ([(c.view, c.accepted, c.reason) for c in same.candidates]
+            == [(c.view, c.accepted, c.reason) for c in base.candidates])
+
+
+def test_the_paper_presets_compare_with_the_composite():
+    for name in ("paper", "paper-local", "default", "exact", "fast"):
+        assert FilterConfig.preset(name).reveal_reference == "composite"
+    assert FilterConfig.preset("video").reveal_reference == "quantile"
