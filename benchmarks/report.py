@@ -538,9 +538,12 @@ STATIC = {
 From 24 input views on, the default bounds each camera's renders to the Gaussians of its seven
 most co-visible views and of the views it verifies, and picks the verification views by the
 field of view they share both ways (`neighbours="auto"`, `verify_views="auto"`); below 24 views,
-and in the `exact` preset, every view. For the frames of a video, `leave_out=R` (off by
-default) also leaves the R views on each side out of a view's exclusion render. What they
-answer and their measurements are in `docs/method.md`, "Dense captures"; their speed is in the
+and in the `exact` preset, every view. For the frames of a video, the `video` preset compares
+each view with its reveal reference (`reveal_reference="quantile"`: per pixel, the 0.75
+quantile of the depths of its seven most co-visible views, each rendered on its own) instead of
+the exclusion render, and leaves the frame on each side out of its exclusion render and its
+verification (`leave_out=1`). What they answer and their measurements are in
+`docs/method.md`, "Dense captures" and "Video"; their speed is in the
 street rows of "Speed" above (32, 64 and 100 views). `prune_views` never changes the output; it
 is off by default because on the stand-in dense captures the proposals cover about half of
 every image, so little can be pruned.

@@ -184,4 +184,5 @@ def test_below_min_views_neighbours_the_output_is_the_composite_one():
 def test_the_paper_presets_compare_with_the_composite():
     for name in ("paper", "paper-local", "default", "exact", "fast"):
         assert FilterConfig.preset(name).reveal_reference == "composite"
-    assert FilterConfig.preset("video").reveal_reference == "quantile"
+    video = FilterConfig.preset("video")
+    assert video.reveal_reference == "quantile" and video.leave_out == 1

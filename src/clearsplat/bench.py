@@ -69,6 +69,8 @@ ABLATIONS = {
     "+align-depths": "default+align_depths=true",
     "+edge-tol": "default+edge_tolerance=1",
     "+expand-by-depth": "default+expand_color=false",
+    "+reveal-quantile": "default+reveal_reference=quantile",
+    "video": "video",
 }
 
 

@@ -386,7 +386,8 @@ class FilterConfig:
         at the ``reveal_quantile`` of their depths (where at least ``reveal_min_views`` of
         them cover it; R_i^-i elsewhere). Transients stand in front of the static surface, so
         the farther quantile still shows it where several neighbouring frames hold the same
-        passer-by (video; the ``video`` preset). Verification keeps R_i^-i.
+        passer-by (video; the ``video`` preset, with ``leave_out=1``). Verification keeps
+        R_i^-i.
     reveal_views : int
         Neighbours the reveal reference renders (``reveal_reference="quantile"``), among those
         that R_i^-i holds.
@@ -516,8 +517,8 @@ class FilterConfig:
         (``FilterConfig.preset("paper", checkpoint="/path/to/dinov3")``); ``"paper-local"`` is
         the paper's procedure with the weight-free ``"local"`` features. ``"exact"`` is the
         default without its approximations for dense captures (every view in every camera's
-        renders); ``"video"`` is for the frames of a video (``reveal_reference="quantile"``;
-        ``docs/method.md``, "Video"); ``"fast"`` trades recall for time (one round, four
+        renders); ``"video"`` is for the frames of a video (``reveal_reference="quantile"``,
+        ``leave_out=1``; ``docs/method.md``, "Video"); ``"fast"`` trades recall for time (one round, four
         neighbours per camera; ``docs/method.md``, "The fast preset").
         """
         if name not in PRESETS:
@@ -650,8 +651,9 @@ PRESETS = {
     # captures").
     "exact": FilterConfig(neighbours=None, verify_views="centres"),
     # The frames of a video: passers-by stay for several consecutive frames, so the proposal
-    # and refinement compare each view with the reveal reference (docs/method.md, "Video").
-    "video": FilterConfig(reveal_reference="quantile"),
+    # and refinement compare each view with the reveal reference, and the frames next to a
+    # view do not verify it (docs/method.md, "Video").
+    "video": FilterConfig(reveal_reference="quantile", leave_out=1),
     # Faster than the default, finding less: one round, and each camera's renders hold the
     # four views that share the most of its field of view (docs/method.md, "The fast preset").
     "fast": FilterConfig(rounds=1, neighbours=4),
