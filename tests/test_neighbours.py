@@ -153,8 +153,11 @@ def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere
     world = make_world("street", num_views=6, seed=4, height=48, width=80, transients="video")
     scene, truth = realistic_reconstruction(world, "plain", seed=4)
     ex = get_extractor("local")
+    # R_i^-i itself is what the proposal compares with (not the reveal reference).
     res = filter_distractors(scene, config=FilterConfig(leave_out=1, rounds=1,
-                                                         min_relative_score=0.0), extractor=ex)
+                                                         min_relative_score=0.0,
+                                                         reveal_reference="composite"),
+                             extractor=ex)
     assert res.candidates
     for c in res.candidates:        # no verifying view next to the candidate's own
         assert all(abs(j - c.view) > 1 for j in c.verify_views)
@@ -166,8 +169,11 @@ def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere
         np.testing.assert_array_equal(p.exclusion, render(scene, scene.cameras[p.view],
                                                           keep=far).rgb)
     zero = filter_distractors(scene, config=FilterConfig(leave_out=0, rounds=1,
-                                                          min_relative_score=0.0), extractor=ex)
-    plain = filter_distractors(scene, config=FilterConfig(rounds=1, min_relative_score=0.0),
+                                                          min_relative_score=0.0,
+                                                          reveal_reference="composite"),
+                              extractor=ex)
+    plain = filter_distractors(scene, config=FilterConfig(rounds=1, min_relative_score=0.0,
+                                                          reveal_reference="composite"),
                                extractor=ex)
     np.testing.assert_array_equal(zero.keep, plain.keep)
     assert res.removed[truth].mean() > zero.removed[truth].mean()
@@ -273,14 +279,15 @@ def test_own_masks_are_built_when_asked_and_equal_the_gather(street):
                 own[v]
 
 
-def test_fast_preset_is_the_default_up_to_five_views():
-    """``fast`` bounds each camera to four neighbours and one round: with five views every
-    other view is a neighbour and the default runs one round there, so the output is the
-    default's, bit for bit."""
+def test_fast_preset_is_the_composite_default_up_to_five_views():
+    """``fast`` bounds each camera to four neighbours and one round, and compares with R_i^-i:
+    with five views every other view is a neighbour and the default runs one round there, so
+    the output is that of the default with ``reveal_reference="composite"``, bit for bit."""
     world = make_world("street", num_views=5, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "plain", seed=4)
     ex = get_extractor("local")
-    default = filter_distractors(scene, config=FilterConfig(), extractor=ex)
+    default = filter_distractors(scene, config=FilterConfig(reveal_reference="composite"),
+                                 extractor=ex)
     fast = filter_distractors(scene, config=FilterConfig.preset("fast"), extractor=ex)
     assert default.candidates and default.removed.any()     # something to agree on
     np.testing.assert_array_equal(fast.keep, default.keep)

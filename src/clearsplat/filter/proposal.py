@@ -74,7 +74,8 @@ class ViewProposal:
     unreliable : (H, W) bool or None
         Pixels that verification also leaves out (``FilterConfig.verify_mask``).
     exclusion : (H, W, 3) float32 or None
-        The exclusion render R_i^-i (kept for the diagnostic pictures).
+        What the similarity compared the input with (kept for the diagnostic pictures): the
+        exclusion render R_i^-i, or the reveal reference in its place (``reveal_reference``).
     """
 
     view: int
