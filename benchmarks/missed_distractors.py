@@ -19,7 +19,8 @@ in the first of these steps that lost it:
 - *refined away*: in a region, but in no candidate: refinement found it not in front of the
   static reference (nor different in colour from it). Split by where the Gaussian lies against
   that reference (R_i^-i without every proposed Gaussian, rendered here from the first round's
-  regions, before the depth-scale alignment): *behind* it (another view's static content lies
+  regions, and the reveal reference where it applies with ``reveal_reference="quantile"``,
+  before the depth-scale alignment): *behind* it (another view's static content lies
   in front of the distractor at its pixel: misplaced by depth or pose error, or an occlusion
   edge), *within the margin* (in front by less than ``refine_margin``: a distractor on or next
   to the surface behind it), *in front* (by more). With ``depth_scale_align`` (the default)
@@ -58,7 +59,9 @@ import numpy as np
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians
+from clearsplat.filter.neighbours import covisibility, dense_options, view_plan
 from clearsplat.filter.refine import member_pixels, widened_margin
+from clearsplat.filter.reveal import reveal_neighbours, reveal_reference
 from clearsplat.filter.robust import view_depth_scales
 from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
@@ -66,12 +69,39 @@ from clearsplat.synth.backbone import distractor_truth
 from clearsplat.synth.realism import parse_realism, realistic_reconstruction
 
 
+def _reveal_depths(scene, config):
+    """Per view, the reveal reference's depth and where it applies, (H*W,) each, as the first
+    round builds them (``reveal_reference="quantile"``); None for the composite."""
+    if config.reveal_reference != "quantile":
+        return None
+    neighbours, verify_views = dense_options(scene.num_views, config.neighbours,
+                                             config.verify_views)
+    plan = view_plan(scene, neighbours=neighbours, verify_views=verify_views,
+                     num_verify_views=config.num_verify_views, leave_out=config.leave_out)
+    c = covisibility(scene)
+    shared = c + c.T
+    views = np.arange(scene.num_views)
+    out = []
+    for v, cam in enumerate(scene.cameras):
+        allowed = np.abs(views - v) > config.leave_out
+        if plan is not None and plan.hoods is not None:
+            allowed &= plan.hoods[v]
+        others = reveal_neighbours(shared, v, count=config.reveal_views, allowed=allowed)
+        excl = render(scene, cam, keep=np.abs(scene.view_id - v) > config.leave_out)
+        ref, valid = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],
+                                      excl, quantile=config.reveal_quantile,
+                                      min_views=config.reveal_min_views)
+        out.append((ref.depth.ravel(), valid.ravel()))
+    return out
+
+
 def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
                        margin: float, align_scale: bool = False,
-                       margins: dict | None = None) -> np.ndarray:
+                       margins: dict | None = None, reveal: list | None = None) -> np.ndarray:
     """For the ``lost`` Gaussians ((N,) bool), where each lies against the static reference of
-    its view: R_i^-i without the ``proposed`` Gaussians, R_i^-i where that leaves a hole (as
-    refinement builds it). Returns their step names, in the order of ``np.flatnonzero(lost)``.
+    its view: R_i^-i without the ``proposed`` Gaussians, R_i^-i where that leaves a hole, and
+    the reveal reference where it applies (``reveal``, from :func:`_reveal_depths`), as
+    refinement builds it. Returns their step names, in the order of ``np.flatnonzero(lost)``.
 
     With ``align_scale`` (``FilterConfig.depth_scale_align``) those in front by more than
     ``margin`` are split as the first refinement pass judges them: each view's depths divided
@@ -85,6 +115,8 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
         static = render(scene, cam, keep=(own != v) & ~proposed)
         excl = render(scene, cam, keep=own != v)
         ref = np.where(static.alpha > 0.1, static.depth, excl.depth).ravel()
+        if reveal is not None:
+            ref = np.where(reveal[v][1], reveal[v][0], ref)
         sel = own[where] == v
         g = where[sel]
         members = index.members[v]
@@ -114,7 +146,8 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
 
 
 def _steps(scene, result, truth, min_weight: float, margin: float,
-           align_scale: bool = False, margins: dict | None = None) -> np.ndarray:
+           align_scale: bool = False, margins: dict | None = None,
+           reveal: list | None = None) -> np.ndarray:
     """(N,) object: the step that lost each missed distractor Gaussian ('' elsewhere)."""
     n = len(scene)
     index = ViewIndex(scene)
@@ -129,7 +162,7 @@ def _steps(scene, result, truth, min_weight: float, margin: float,
     missed = truth & result.keep
     step[missed & ~in_region] = "no region"
     step[missed & in_region] = _against_reference(scene, index, missed & in_region, in_region,
-                                                  margin, align_scale, margins)
+                                                  margin, align_scale, margins, reveal)
     for c in result.candidates:      # the latest test a candidate reached names the loss
         lost = c.gaussians[missed[c.gaussians]]
         if not c.accepted:
@@ -189,7 +222,8 @@ def main(argv=None) -> int:
     result = filter_distractors(scene, config=config)
     margins: dict = {}
     step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin,
-                  config.depth_scale_align and config.refine == "static-depth", margins)
+                  config.depth_scale_align and config.refine == "static-depth", margins,
+                  _reveal_depths(scene, config))
     missed = truth & result.keep
     print(f"{args.realism} {args.family}, {args.views} views at {w}x{h}, seed {args.seed}, "
           f"{args.config}: recall {1 - missed.sum() / max(truth.sum(), 1):.3f} "

@@ -45,6 +45,42 @@ def test_gaussians_moved_along_their_ray_are_placed_against_the_reference():
     got = dict(zip(np.flatnonzero(lost).tolist(), names))
     assert got[g] == "refined away: in front by more"
     assert got[h] == "refined away: behind the static reference"
+    # Where the reveal reference applies it is the reference: a reveal depth far beyond both
+    # puts both in front, one at the camera puts both behind; where it does not, as before.
+    pixels = scene.cameras[0].height * scene.cameras[0].width
+    for depth, where, expect in ((1e6, True, ("in front by more", "in front by more")),
+                                 (1e-6, True, ("behind the static reference",) * 2),
+                                 (1e-6, False, ("in front by more",
+                                                "behind the static reference"))):
+        reveal = [(np.full(pixels, depth), np.full(pixels, where))] * scene.num_views
+        names = _script()._against_reference(scene, ViewIndex(scene), lost,
+                                              np.zeros(len(scene), dtype=bool), 0.02,
+                                              reveal=reveal)
+        got = dict(zip(np.flatnonzero(lost).tolist(), names))
+        assert (got[g], got[h]) == tuple("refined away: " + e for e in expect)
+
+
+def test_reveal_depths_are_the_filters_reveal_references():
+    from clearsplat.filter.neighbours import covisibility
+    from clearsplat.filter.reveal import reveal_neighbours, reveal_reference
+    from clearsplat.render import prepare, render
+
+    world = make_world("street", num_views=6, seed=1, height=32, width=48)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
+    mod = _script()
+    assert mod._reveal_depths(scene, FilterConfig(reveal_reference="composite")) is None
+    out = mod._reveal_depths(scene, FilterConfig())
+    c = covisibility(scene)
+    for v, (depth, valid) in enumerate(out):
+        others = reveal_neighbours(c + c.T, v, count=7)
+        assert len(others) == 5
+        cam = scene.cameras[v]
+        ref, where = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],
+                                      render(scene, cam, keep=scene.view_id != v),
+                                      quantile=0.75, min_views=4)
+        np.testing.assert_array_equal(valid, where.ravel())
+        np.testing.assert_array_equal(depth, ref.depth.ravel())
+    assert any(valid.any() for _, valid in out)
 
 
 def test_in_front_is_split_as_the_first_refinement_pass_judges_it():

@@ -8,8 +8,9 @@ R_i^-i shows him instead of the wall behind and reveals nothing (docs/method.md,
 
 Here each of the ``reveal_views`` other views that share the most of view i's field of view
 (:func:`clearsplat.filter.neighbours.covisibility`, ``C[i, j] + C[j, i]``) is rendered into
-camera i on its own. At each pixel the views that cover it (accumulated opacity above 0.5)
-give one expected depth each; transients only ever stand in front of the static surface, so
+camera i on its own (two per pass over the view's tile lists, ``render_pair``, each equal to
+its own render bit for bit). At each pixel the views that cover it (accumulated opacity above
+0.5) give one expected depth each; transients only ever stand in front of the static surface, so
 the reference is the view at rank ``floor(q (n - 1))`` of the n depths in ascending order
 (``reveal_quantile`` q): with q = 0.75 it still shows the surface when up to three quarters
 of the covering views hold something in front, and is not fooled by a quarter that see past
@@ -84,7 +85,11 @@ def reveal_reference(view, layers: list, fallback: RenderResult, *, quantile: fl
     Returns the reference and (H, W) bool, where it is not ``fallback``'s."""
     if not layers:
         return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
-    renders = [view.render(keep=keep) for keep in layers]
+    renders = []
+    for k in range(0, len(layers) - 1, 2):    # two layers per pass over the tile lists
+        renders.extend(view.render_pair(keep=layers[k + 1], first=layers[k]))
+    if len(layers) % 2:
+        renders.append(view.render(keep=layers[-1]))
     depth = np.stack([r.depth for r in renders])
     alpha = np.stack([r.alpha for r in renders])
     layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
