@@ -68,8 +68,8 @@ def test_reveal_depths_are_the_filters_reveal_references():
     world = make_world("street", num_views=6, seed=1, height=32, width=48)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
     mod = _script()
-    assert mod._reveal_depths(scene, FilterConfig(reveal_reference="composite")) is None
-    out = mod._reveal_depths(scene, FilterConfig())
+    assert mod._reveal_depths(scene, FilterConfig()) is None       # the composite
+    out = mod._reveal_depths(scene, FilterConfig(reveal_reference="quantile"))
     c = covisibility(scene)
     for v, (depth, valid) in enumerate(out):
         others = reveal_neighbours(c + c.T, v, count=7)

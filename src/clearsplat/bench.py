@@ -55,7 +55,6 @@ ABLATIONS = {
     "keep-removed-px": "default+verify_mask_removed=false",
     "remove-hidden": "default+verify_hidden=null",
     "hidden-fixed": "default+verify_hidden_widen=false",
-    "composite-reveal": "default+reveal_reference=composite",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",
@@ -70,6 +69,7 @@ ABLATIONS = {
     "+align-depths": "default+align_depths=true",
     "+edge-tol": "default+edge_tolerance=1",
     "+expand-by-depth": "default+expand_color=false",
+    "+reveal-quantile": "default+reveal_reference=quantile",
     "video": "video",
 }
 

@@ -380,15 +380,17 @@ class FilterConfig:
         show him instead of the surface behind. 0: the paper (only view i's own).
     reveal_reference : {"composite", "quantile"}
         What the proposal (similarity and support) and refinement compare view i with.
-        ``"composite"``: the paper's R_i^-i. ``"quantile"`` (the default): the reveal
+        ``"composite"`` (the default): the paper's R_i^-i. ``"quantile"``: the reveal
         reference (:mod:`clearsplat.filter.reveal`): the ``reveal_views`` views that share the
         most of view i's field of view, each rendered into camera i on its own, and per pixel
         the one at the ``reveal_quantile`` of their depths (where at least
         ``reveal_min_views`` of them cover it; R_i^-i elsewhere, so up to four input views the
         output is the composite's). Transients stand in front of the static surface, so the
         farther quantile still shows it where other views hold passers-by in front of it, as
-        R_i^-i does not (several neighbouring frames of a video hold the same one; the
-        ``video`` preset adds ``leave_out=1``). Verification keeps R_i^-i.
+        R_i^-i does not: several neighbouring frames of a video hold the same one (the
+        ``video`` preset, with ``leave_out=1``). Not the default: on photographs taken around
+        an object at 8 views it also removes static content (docs/method.md, "Video").
+        Verification keeps R_i^-i.
     reveal_views : int
         Neighbours the reveal reference renders (``reveal_reference="quantile"``), among those
         that R_i^-i holds.
@@ -482,7 +484,7 @@ class FilterConfig:
     verify_hidden: float | None = 0.05
     verify_hidden_widen: bool = True
     leave_out: int = 0
-    reveal_reference: Literal["composite", "quantile"] = "quantile"
+    reveal_reference: Literal["composite", "quantile"] = "composite"
     reveal_views: int = 7
     reveal_quantile: float = 0.75
     reveal_min_views: int = 4
@@ -518,10 +520,9 @@ class FilterConfig:
         (``FilterConfig.preset("paper", checkpoint="/path/to/dinov3")``); ``"paper-local"`` is
         the paper's procedure with the weight-free ``"local"`` features. ``"exact"`` is the
         default without its approximations for dense captures (every view in every camera's
-        renders); ``"video"`` is for the frames of a video (``leave_out=1``; ``docs/method.md``,
-        "Video"); ``"fast"`` trades recall for time (one round, four
-        neighbours per camera, R_i^-i as the reveal reference; ``docs/method.md``, "The fast
-        preset").
+        renders); ``"video"`` is for the frames of a video (``reveal_reference="quantile"``,
+        ``leave_out=1``; ``docs/method.md``, "Video"); ``"fast"`` trades recall for time (one
+        round, four neighbours per camera; ``docs/method.md``, "The fast preset").
         """
         if name not in PRESETS:
             raise ClearsplatError(f"unknown preset {name!r}; choose one of "
@@ -633,8 +634,7 @@ PRESETS = {
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres", verify_mask_removed=False,
-                          verify_hidden=None, verify_hidden_widen=False,
-                          reveal_reference="composite"),
+                          verify_hidden=None, verify_hidden_widen=False),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -648,20 +648,18 @@ PRESETS = {
                                 depth_scale_reach=0, rounds=1,
                                 refine_color_grow=None, neighbours=None,
                                 verify_views="centres", verify_mask_removed=False,
-                                verify_hidden=None, verify_hidden_widen=False,
-                                reveal_reference="composite"),
+                                verify_hidden=None, verify_hidden_widen=False),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").
     "exact": FilterConfig(neighbours=None, verify_views="centres"),
-    # The frames of a video: passers-by stay for several consecutive frames, so the frames
-    # next to a view are left out of its exclusion render and its verification
-    # (docs/method.md, "Video").
-    "video": FilterConfig(leave_out=1),
-    # Faster than the default, finding less: one round, each camera's renders hold the four
-    # views that share the most of its field of view, and R_i^-i is the reveal reference
-    # (docs/method.md, "The fast preset").
-    "fast": FilterConfig(rounds=1, neighbours=4, reveal_reference="composite"),
+    # The frames of a video: passers-by stay for several consecutive frames, so the proposal
+    # and refinement compare each view with the reveal reference, and the frames next to a
+    # view are left out of its exclusion render and its verification (docs/method.md, "Video").
+    "video": FilterConfig(reveal_reference="quantile", leave_out=1),
+    # Faster than the default, finding less: one round, and each camera's renders hold the
+    # four views that share the most of its field of view (docs/method.md, "The fast preset").
+    "fast": FilterConfig(rounds=1, neighbours=4),
 }
 
 
