@@ -35,8 +35,9 @@ in the first of these steps that lost it:
   surface of each of its verifying views (``verify_hidden``).
 
 Prints the totals, then per input view the distractor Gaussians, those missed, the view's
-depth scale and widened margin and their steps, and with ``--view`` every candidate of that view with its round, scores, verification
-views and how many of its Gaussians are distractors.
+depth scale and widened margin and their steps, and with ``--view`` every candidate of that
+view with its round, scores, verification views and how many of its Gaussians are
+distractors.
 
 With ``--other``, also where the static Gaussians that the filter removes lie (the
 benchmark's *other removed*: every removed Gaussian whose pixel shows the static scene in its

@@ -56,7 +56,8 @@ class KeptGaussians(Gaussians):
     ``opacities`` copied and ``scales``, ``quats`` and ``sh`` gathered from ``whole`` on each
     read. The native backend prepares a later round's views from the whole scene
     (:attr:`Carry.source`), so a round does not hold a second copy of what only projection
-    reads: 28 bytes per Gaussian plus 12 per SH coefficient. ``extra`` is empty (the filter never reads it)."""
+    reads: 28 bytes per Gaussian plus 12 per SH coefficient. ``extra`` is empty (the filter
+    never reads it)."""
 
     def __init__(self, whole: Gaussians, kept: np.ndarray):
         self._whole, self._kept = whole, np.asarray(kept)
