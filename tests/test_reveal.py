@@ -39,7 +39,8 @@ def test_quantile_layers_match_a_loop(seed, quantile, min_views):
     k, h, w = 7, 9, 11
     # Few distinct depths, so that ties occur and their order is tested too.
     depth = rng.integers(1, 6, size=(k, h, w)).astype(np.float32)
-    # Each layer covers about a third of the pixels: every count from 0 to 7 occurs.
+    # Each layer covers about a third of the pixels: 0 to 4-6 covering layers per pixel occur,
+    # on both sides of every min_views tested (asserted below).
     alpha = (rng.uniform(0.0, 1.0, size=(k, h, w))
              * (rng.uniform(size=(k, h, w)) < 0.6)).astype(np.float32)
     layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
