@@ -1,5 +1,5 @@
 """How often a view's exclusion render reveals a farther surface behind its own Gaussians, and
-how often a per-pixel median over its most co-visible neighbours would.
+how often its reveal reference (``reveal_reference="quantile"``) does.
 
 Usage::
 
@@ -10,24 +10,24 @@ The support condition and refinement ask whether removing view i's Gaussians rev
 surface farther than their own. R_i^-i composites every other view front to back, so a
 passer-by that other views also hold (the neighbouring frames of a video) stands in it and
 reveals nothing. This compares, per Gaussian of view i, ``z < (1 - margin) * d`` for two
-reference depths d at its pixel: R_i^-i's expected depth, and the median over the
-``--neighbours`` views that share most of view i's field of view (``C[j, i] + C[i, j]``,
-:func:`clearsplat.filter.neighbours.covisibility`) of each one's own render into camera i
-(where it covers the pixel, accumulated opacity above 0.5), for the distractor Gaussians
-(which should be revealed) and for a sample of the static ones (which should not); then per
-view, for its distractor Gaussians. The plain stand-in (``clearsplat bench`` builds it so),
+reference depths d at its pixel: R_i^-i's expected depth, and the reveal reference's
+(:func:`clearsplat.filter.reveal.reveal_reference`: the ``--quantile`` of the depths of the
+``--neighbours`` views that share most of view i's field of view, each rendered into camera i
+on its own, where at least one covers the pixel), for the distractor Gaussians (which should
+be revealed) and for a sample of the static ones (which should not); then per view, for its
+distractor Gaussians. The plain stand-in (``clearsplat bench`` builds it so),
 seed and resolution as given. Counts only: the same on any machine.
 """
 
 from __future__ import annotations
 
 import argparse
-import warnings
 
 import numpy as np
 
 from clearsplat.filter.neighbours import covisibility
-from clearsplat.render import render
+from clearsplat.filter.reveal import reveal_reference
+from clearsplat.render import RenderResult, prepare, render
 from clearsplat.synth import make_world, reconstruct
 from clearsplat.synth.backbone import distractor_truth
 
@@ -38,19 +38,17 @@ def covered_depth(result, min_alpha: float = 0.0) -> np.ndarray:
     return np.where(result.alpha.ravel() > min_alpha, result.depth.ravel(), np.nan)
 
 
-def median_reference(scene, view: int, others, min_alpha: float = 0.5) -> np.ndarray:
-    """(H*W,) per pixel of ``view``, the median over ``others`` of each view's own Gaussians
-    rendered into its camera (expected depth), counting a view only where its accumulated
-    opacity exceeds ``min_alpha``; NaN where none does."""
+def quantile_reference(scene, view: int, others, quantile: float) -> np.ndarray:
+    """(H*W,) per pixel of ``view``, the depth of its reveal reference from the views
+    ``others`` (:func:`clearsplat.filter.reveal.reveal_reference`, at least one covering
+    view); NaN where none covers."""
     cam = scene.cameras[view]
-    stack = []
-    for j in others:
-        stack.append(covered_depth(render(scene, cam, keep=scene.view_id == j), min_alpha))
-    if not stack:
-        return np.full(cam.height * cam.width, np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN pixels stay NaN
-        return np.nanmedian(np.array(stack), axis=0)
+    h, w = cam.height, cam.width
+    nothing = RenderResult(np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32),
+                           np.full((h, w), np.nan, np.float32))
+    ref, _ = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],
+                              nothing, quantile=quantile, min_views=1)
+    return ref.depth.ravel()
 
 
 def revealed(scene, gaussians: np.ndarray, view: int, reference: np.ndarray,
@@ -71,6 +69,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--transients", default="video", help="shots or video (make_world)")
     p.add_argument("--neighbours", type=int, default=7)
+    p.add_argument("--quantile", type=float, default=0.75,
+                   help="the reveal reference's rank among the covering depths")
     p.add_argument("--margin", type=float, default=0.05)
     p.add_argument("--static-sample", type=int, default=5000,
                    help="static Gaussians sampled per view")
@@ -83,35 +83,35 @@ def main(argv=None) -> int:
     shared = covisibility(scene)
     shared = shared + shared.T
     rng = np.random.default_rng(args.seed)
-    counts = {("distractor", "excl"): 0, ("distractor", "median"): 0,
-              ("static", "excl"): 0, ("static", "median"): 0}
+    counts = {("distractor", "excl"): 0, ("distractor", "quantile"): 0,
+              ("static", "excl"): 0, ("static", "quantile"): 0}
     totals = {"distractor": 0, "static": 0}
     per_view = []
     for i in range(scene.num_views):
         own = scene.view_id == i
         others = [j for j in np.argsort(-shared[i], kind="stable") if j != i][:args.neighbours]
         excl = covered_depth(render(scene, scene.cameras[i], keep=~own))
-        median = median_reference(scene, i, others)
+        robust = quantile_reference(scene, i, others, args.quantile)
         static = np.flatnonzero(own & ~truth)
         static = rng.choice(static, size=min(args.static_sample, static.size), replace=False)
         for kind, ids in (("distractor", np.flatnonzero(own & truth)), ("static", static)):
             totals[kind] += ids.size
             counts[kind, "excl"] += int(revealed(scene, ids, i, excl, args.margin).sum())
-            counts[kind, "median"] += int(revealed(scene, ids, i, median, args.margin).sum())
+            counts[kind, "quantile"] += int(revealed(scene, ids, i, robust, args.margin).sum())
         ids = np.flatnonzero(own & truth)
         if ids.size:
             per_view.append((i, ids.size, revealed(scene, ids, i, excl, args.margin).mean(),
-                             revealed(scene, ids, i, median, args.margin).mean()))
+                             revealed(scene, ids, i, robust, args.margin).mean()))
     print(f"{args.family}, {args.transients}, {args.views} views at {w}x{h}, seed {args.seed}; "
           f"a farther surface (by {args.margin:.0%}) revealed behind:")
     for kind in ("distractor", "static"):
         n = max(totals[kind], 1)
         print(f"  {kind:10s} Gaussians ({totals[kind]:,}): R_i^-i "
-              f"{counts[kind, 'excl'] / n:.3f}, median of {args.neighbours} neighbours "
-              f"{counts[kind, 'median'] / n:.3f}")
-    print(f"\n{'view':>4} {'distractor':>10} {'R_i^-i':>7} {'median':>7}")
+              f"{counts[kind, 'excl'] / n:.3f}, quantile {args.quantile} of {args.neighbours} "
+              f"neighbours {counts[kind, 'quantile'] / n:.3f}")
+    print(f"\n{'view':>4} {'distractor':>10} {'R_i^-i':>7} {'quantile':>8}")
     for i, n, a, b in per_view:
-        print(f"{i:>4} {n:>10,} {a:>7.3f} {b:>7.3f}")
+        print(f"{i:>4} {n:>10,} {a:>7.3f} {b:>8.3f}")
     return 0
 
 

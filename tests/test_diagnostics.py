@@ -175,20 +175,24 @@ def test_reference_reveal_reads_both_references_at_each_gaussians_pixel():
     centre = cam.camera_to_world[:3, 3]
     scene.gaussians.means[g] = centre + 0.5 * (scene.gaussians.means[g] - centre)
     excl = mod.covered_depth(render(scene, cam, keep=scene.view_id != 0))
-    median = mod.median_reference(scene, 0, [1, 2, 3])
-    for reference in (excl, median):    # halfway to the camera: revealed; on the surface: not
+    robust = mod.quantile_reference(scene, 0, [1, 2, 3], 0.75)
+    for reference in (excl, robust):    # halfway to the camera: revealed; on the surface: not
         assert mod.revealed(scene, np.array([g, h]), 0, reference, 0.05).tolist() == [True,
                                                                                       False]
     # One neighbour: its own expected depth (the render's depth, already divided by its
-    # opacity) wherever it covers the pixel by more than half.
+    # opacity) wherever it covers the pixel by more than half, at any quantile.
     one = render(scene, cam, keep=scene.view_id == 2)
     want = np.where(one.alpha.ravel() > 0.5, one.depth.ravel(), np.nan)
-    np.testing.assert_array_equal(mod.median_reference(scene, 0, [2]), want)
-    # Two neighbours: their mean where both cover, the one that covers elsewhere.
+    for q in (0.0, 0.75):
+        np.testing.assert_array_equal(mod.quantile_reference(scene, 0, [2], q), want)
+    # Two neighbours: where both cover, the nearer below the quantile 1 and the farther at it;
+    # where one covers, that one.
     other = render(scene, cam, keep=scene.view_id == 3)
     both = np.vstack([want, np.where(other.alpha.ravel() > 0.5, other.depth.ravel(), np.nan)])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)     # pixels neither covers: NaN
-        mean = np.nanmean(both, axis=0)
-    np.testing.assert_allclose(mod.median_reference(scene, 0, [2, 3]), mean, rtol=1e-6)
-    assert np.isnan(mod.median_reference(scene, 0, [])).all()
+        near, far = np.nanmin(both, axis=0), np.nanmax(both, axis=0)
+    assert (near < far).any()
+    np.testing.assert_array_equal(mod.quantile_reference(scene, 0, [2, 3], 0.75), near)
+    np.testing.assert_array_equal(mod.quantile_reference(scene, 0, [2, 3], 1.0), far)
+    assert np.isnan(mod.quantile_reference(scene, 0, [], 0.75)).all()

@@ -104,8 +104,10 @@ def _reveal(state, shared: np.ndarray, i: int, r_excl):
         allowed = allowed & state.plan.hoods[i]
     config = state.config
     others = reveal_neighbours(shared, i, count=config.reveal_views, allowed=allowed)
-    view_id = state.scene.view_id
-    return reveal_reference(state.views[i], [view_id == j for j in others], r_excl,
+    # Each neighbour's Gaussians from its members (not a comparison over every Gaussian).
+    views = np.arange(state.num_views)
+    layers = [state.index.views_mask(views == j, state.n) for j in others]
+    return reveal_reference(state.views[i], layers, r_excl,
                             quantile=config.reveal_quantile,
                             min_views=config.reveal_min_views)
 
