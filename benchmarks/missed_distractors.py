@@ -62,7 +62,8 @@ from clearsplat.filter import filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians
 from clearsplat.filter.neighbours import covisibility, dense_options, view_plan
 from clearsplat.filter.refine import member_pixels, widened_margin
-from clearsplat.filter.reveal import reveal_neighbours, reveal_reference
+from clearsplat.filter.reveal import (parallax_angles, reveal_neighbours, reveal_reference,
+                                      typical_depths)
 from clearsplat.filter.robust import view_depth_scales
 from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
@@ -82,11 +83,17 @@ def _reveal_depths(scene, config):
     c = covisibility(scene)
     shared = c + c.T
     views = np.arange(scene.num_views)
+    near = None
+    if config.reveal_max_angle is not None:
+        near = (parallax_angles(scene.cameras, typical_depths(scene))
+                <= config.reveal_max_angle)
     out = []
     for v, cam in enumerate(scene.cameras):
         allowed = np.abs(views - v) > config.leave_out
         if plan is not None and plan.hoods is not None:
             allowed &= plan.hoods[v]
+        if near is not None:
+            allowed &= near[v]
         others = reveal_neighbours(shared, v, count=config.reveal_views, allowed=allowed)
         excl = render(scene, cam, keep=np.abs(scene.view_id - v) > config.leave_out)
         ref, valid = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],

@@ -535,18 +535,15 @@ _SPEED_TEXT = (
 STATIC = {
     "dense": """## Dense captures
 
-From 24 input views on, the default bounds each camera's renders to the Gaussians of its seven
-most co-visible views and of the views it verifies, and picks the verification views by the
-field of view they share both ways (`neighbours="auto"`, `verify_views="auto"`); below 24 views,
-and in the `exact` preset, every view. For the frames of a video, the `video` preset compares
-each view with its reveal reference (`reveal_reference="quantile"`: per pixel, the 0.75
-quantile of the depths of its seven most co-visible views, each rendered on its own) instead of
-the exclusion render, and leaves the frame on each side out of its exclusion render and its
-verification (`leave_out=1`). What they answer and their measurements are in
-`docs/method.md`, "Dense captures" and "Video"; their speed is in the
-street rows of "Speed" above (32, 64 and 100 views). `prune_views` never changes the output; it
-is off by default because on the stand-in dense captures the proposals cover about half of
-every image, so little can be pruned.
+From 24 views on, the default bounds each camera's renders to its seven most co-visible views
+and those it verifies, and picks verification views by the field of view shared both ways
+(`neighbours="auto"`, `verify_views="auto"`); below 24 views, and in `exact`, every view. Each
+view is compared with its reveal reference (per pixel, the 0.75 quantile of the depths of its
+seven most co-visible views within 30 degrees, each rendered on its own), which outvotes the
+other views' passers-by; the `video` preset also leaves the frame on each side out
+(`leave_out=1`). Measurements: `docs/method.md`, "Dense captures", "`reveal_reference`" and
+"Video"; speed: the street rows of "Speed" above. `prune_views` never changes the output; it is
+off by default: on the stand-in dense captures the proposals cover about half of every image.
 """,
     "gpu": """## On a GPU
 

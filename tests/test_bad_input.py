@@ -676,8 +676,8 @@ def test_memory_estimate_and_check(monkeypatch):
     from clearsplat import _memory as m
     cam = Camera(K=[[10.0, 0, 4], [0, 10.0, 3], [0, 0, 1]], camera_to_world=np.eye(4), width=8,
                  height=6)
-    # closed form: V views x N x (60 + 4 t + 4) held + V x N x 1.125 + 100 N + 360 per pixel
-    rest = 3 * 1000 * 1.125 + 100 * 1000 + 360 * 144
+    # closed form: V views x N x (60 + 4 t + 4) held + V x N x 1.125 + 100 N + 381 per pixel
+    rest = 3 * 1000 * 1.125 + 100 * 1000 + 381 * 144
     assert m.estimate_filter_memory(1000, [cam] * 3) == int(3 * 1000 * 72 + rest)
     assert m.estimate_filter_memory(1000, [cam] * 3, tiles_per_gaussian=4.0,
                                     visible_fraction=0.5) == \

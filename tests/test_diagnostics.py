@@ -60,27 +60,52 @@ def test_gaussians_moved_along_their_ray_are_placed_against_the_reference():
         assert (got[g], got[h]) == tuple("refined away: " + e for e in expect)
 
 
-def test_reveal_depths_are_the_filters_reveal_references():
+def _assert_reveal_depths(scene, out, allowed, min_views):
+    """``out`` (the script's ``_reveal_depths``) equals the library's reveal reference of each
+    view from its ``reveal_neighbours`` among ``allowed`` ((V, V) bool; None: every view)."""
     from clearsplat.filter.neighbours import covisibility
     from clearsplat.filter.reveal import reveal_neighbours, reveal_reference
     from clearsplat.render import prepare, render
 
-    world = make_world("street", num_views=6, seed=1, height=32, width=48)
-    scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
-    mod = _script()
-    assert mod._reveal_depths(scene, FilterConfig()) is None       # the composite
-    out = mod._reveal_depths(scene, FilterConfig(reveal_reference="quantile"))
     c = covisibility(scene)
+    hoods = []
     for v, (depth, valid) in enumerate(out):
-        others = reveal_neighbours(c + c.T, v, count=7)
-        assert len(others) == 5
+        others = reveal_neighbours(c + c.T, v, count=7,
+                                   allowed=None if allowed is None else allowed[v])
+        hoods.append(others)
         cam = scene.cameras[v]
         ref, where = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],
                                       render(scene, cam, keep=scene.view_id != v),
-                                      quantile=0.75, min_views=4)
+                                      quantile=0.75, min_views=min_views)
         np.testing.assert_array_equal(valid, where.ravel())
         np.testing.assert_array_equal(depth, ref.depth.ravel())
+    return hoods
+
+
+def test_reveal_depths_are_the_filters_reveal_references():
+    world = make_world("street", num_views=6, seed=1, height=32, width=48)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
+    mod = _script()
+    assert mod._reveal_depths(scene, FilterConfig(reveal_reference="composite")) is None
+    out = mod._reveal_depths(scene, FilterConfig())
+    hoods = _assert_reveal_depths(scene, out, None, 4)
+    assert all(len(others) == 5 for others in hoods)
     assert any(valid.any() for _, valid in out)
+
+
+def test_reveal_depths_leave_out_the_views_beyond_the_parallax_limit():
+    # Six views on a 90-degree arc round the object, about 15 degrees apart: a 20-degree limit
+    # leaves each view its one or two adjacent views.
+    from clearsplat.filter.reveal import parallax_angles, typical_depths
+
+    world = make_world("object", num_views=6, seed=0, height=32, width=48)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    config = FilterConfig(reveal_max_angle=20.0, reveal_min_views=1)
+    out = _script()._reveal_depths(scene, config)
+    near = parallax_angles(scene.cameras, typical_depths(scene)) <= 20.0
+    hoods = _assert_reveal_depths(scene, out, near, 1)
+    for v, others in enumerate(hoods):
+        assert sorted(others) == [j for j in (v - 1, v + 1) if 0 <= j < scene.num_views]
 
 
 def test_in_front_is_split_as_the_first_refinement_pass_judges_it():

@@ -153,8 +153,9 @@ def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere
     world = make_world("street", num_views=6, seed=4, height=48, width=80, transients="video")
     scene, truth = realistic_reconstruction(world, "plain", seed=4)
     ex = get_extractor("local")
-    res = filter_distractors(scene, config=FilterConfig(leave_out=1, rounds=1,
-                                                         min_relative_score=0.0), extractor=ex)
+    # The composite reference: the proposal's exclusion render is R_i^-i itself.
+    base = FilterConfig(reveal_reference="composite", rounds=1, min_relative_score=0.0)
+    res = filter_distractors(scene, config=base.replace(leave_out=1), extractor=ex)
     assert res.candidates
     for c in res.candidates:        # no verifying view next to the candidate's own
         assert all(abs(j - c.view) > 1 for j in c.verify_views)
@@ -165,10 +166,8 @@ def test_leave_out_renders_without_the_neighbouring_views_and_verifies_elsewhere
         far = np.abs(scene.view_id - p.view) > 1
         np.testing.assert_array_equal(p.exclusion, render(scene, scene.cameras[p.view],
                                                           keep=far).rgb)
-    zero = filter_distractors(scene, config=FilterConfig(leave_out=0, rounds=1,
-                                                          min_relative_score=0.0), extractor=ex)
-    plain = filter_distractors(scene, config=FilterConfig(rounds=1, min_relative_score=0.0),
-                               extractor=ex)
+    zero = filter_distractors(scene, config=base.replace(leave_out=0), extractor=ex)
+    plain = filter_distractors(scene, config=base, extractor=ex)
     np.testing.assert_array_equal(zero.keep, plain.keep)
     assert res.removed[truth].mean() > zero.removed[truth].mean()
 

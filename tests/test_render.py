@@ -10,6 +10,7 @@ from clearsplat import Camera, ClearsplatError, Gaussians, RenderSettings, Scene
 from clearsplat.cameras import look_at
 from clearsplat.render import (Contributions, PreparedView, RenderResult, TilePatch,
                                contributions, prepare, render, render_batch)
+from clearsplat.render.base import _TiledView
 from clearsplat.scene import rgb_to_sh_dc
 
 # Native float32 vs float64 reference.
@@ -378,6 +379,41 @@ def test_render_pair_equals_two_renders(world, which, threads):
         r, c = divmod(int(t), view.grid[1])
         sl = (slice(16 * r, 16 * r + 16), slice(16 * c, 16 * c + 16))
         np.testing.assert_array_equal(b.rgb[sl], full_b.rgb[sl])
+
+
+@pytest.mark.parametrize("count", [1, 2, 5, 9])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_render_layers_equal_one_render_each(world, count, threads):
+    # Random disjoint layers (some Gaussians in none, one layer possibly empty): the native
+    # one-pass kernel and the generic two-per-pass route both equal separate renders.
+    scene, rng = world
+    n = len(scene)
+    code = rng.integers(-2, count, size=n)
+    if count > 2:
+        code[code == 1] = -1                      # an empty layer
+    layers = [code == k for k in range(count)]
+    view = prepare(scene, scene.cameras[0], num_threads=threads)
+    got = view.render_layers(layers, background=(0.2, 0.3, 0.4))
+    generic = _TiledView.render_layers(view, layers, background=(0.2, 0.3, 0.4))
+    assert len(got) == len(generic) == count
+    for k, mask in enumerate(layers):
+        one = view.render(keep=mask, background=(0.2, 0.3, 0.4))
+        assert_same(got[k], one)
+        assert_same(generic[k], one)
+    assert view.render_layers([]) == []
+
+
+def test_render_layers_reject_overlap_and_bad_masks(world):
+    scene, _ = world
+    n = len(scene)
+    view = prepare(scene, scene.cameras[0])
+    half = np.arange(n) < n // 2
+    with pytest.raises(ClearsplatError, match="more than one layer"):
+        view.render_layers([half, np.arange(n) < n // 2 + 1])
+    with pytest.raises(ClearsplatError, match="layers"):
+        view.render_layers([half, np.ones(n - 1, bool)])
+    with pytest.raises(ClearsplatError, match="at most 127"):
+        view.render_layers([np.zeros(n, bool)] * 128)
 
 
 def test_rerender_equals_full_render(world):

@@ -7,8 +7,8 @@ import pytest
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.neighbours import covisibility
-from clearsplat.filter.reveal import (MIN_ALPHA, quantile_layers, reveal_neighbours,
-                                      reveal_reference)
+from clearsplat.filter.reveal import (MIN_ALPHA, parallax_angles, quantile_layers,
+                                      reveal_neighbours, reveal_reference)
 from clearsplat.metrics import removal_stats
 from clearsplat.render import RenderResult, prepare, render
 from clearsplat.synth import distractor_truth, make_world, reconstruct
@@ -140,16 +140,19 @@ def test_the_quantile_reference_shows_the_surface_behind_a_passer_by_held_by_nei
     assert revealed["quantile"] > 1.5 * revealed["composite"]
 
 
-def test_the_video_preset_finds_the_passers_by_the_default_misses(video):
+def test_the_reveal_reference_finds_the_passers_by_the_composite_misses(video):
     scene, truth = video
     extractor = get_extractor("local")
-    default = removal_stats(filter_distractors(scene, extractor=extractor).removed, truth)
-    robust = filter_distractors(scene, config=FilterConfig.preset("video"),
-                                extractor=extractor)
-    stats = removal_stats(robust.removed, truth)
-    assert stats["recall"] > default["recall"] + 0.3
-    assert stats["static_removed"] < 0.03
-    assert robust.timings["proposal.reveal"] > 0
+    composite = filter_distractors(scene, config=FilterConfig(reveal_reference="composite"),
+                                   extractor=extractor)
+    base = removal_stats(composite.removed, truth)
+    for config in (FilterConfig(), FilterConfig.preset("video")):
+        robust = filter_distractors(scene, config=config, extractor=extractor)
+        stats = removal_stats(robust.removed, truth)
+        assert stats["recall"] > base["recall"] + 0.3
+        assert stats["static_removed"] < 0.03
+        assert robust.timings["proposal.reveal"] > 0
+    assert "proposal.reveal" not in composite.timings
 
 
 def test_the_torch_backend_makes_the_native_decisions(video):
@@ -169,21 +172,65 @@ def test_the_torch_backend_makes_the_native_decisions(video):
 
 def test_below_min_views_neighbours_the_output_is_the_composite_one():
     # At four views each view has three others: with reveal_min_views=4 no pixel takes the
-    # reveal reference, and every decision is the default's.
+    # reveal reference, and every decision is the composite's.
     world = make_world("object", num_views=4, seed=1, height=48, width=80)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
     extractor = get_extractor("local")
-    base = filter_distractors(scene, extractor=extractor)
-    same = filter_distractors(scene, config=FilterConfig(reveal_reference="quantile"),
+    base = filter_distractors(scene, config=FilterConfig(reveal_reference="composite"),
                               extractor=extractor)
+    same = filter_distractors(scene, extractor=extractor)
     assert base.removed.any()
     np.testing.assert_array_equal(same.keep, base.keep)
     assert ([(c.view, c.accepted, c.reason) for c in same.candidates]
             == [(c.view, c.accepted, c.reason) for c in base.candidates])
 
 
+def test_views_beyond_the_parallax_limit_are_left_out_of_the_reveal_reference():
+    # Eight views on a 90-degree arc round the object: neighbours lie about 11, 21, 31...
+    # degrees apart. A limit of 5 degrees leaves none near enough, so the decisions are the
+    # composite's; without a limit the far views take part and decide otherwise.
+    world = make_world("object", num_views=8, seed=0, height=48, width=80)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    extractor = get_extractor("local")
+
+    def decisions(config):
+        r = filter_distractors(scene, config=config, extractor=extractor)
+        return r.keep, [(c.view, c.accepted, c.reason) for c in r.candidates], r.timings
+
+    base = decisions(FilterConfig(reveal_reference="composite"))
+    near = decisions(FilterConfig(reveal_max_angle=5.0))
+    np.testing.assert_array_equal(near[0], base[0])
+    assert near[1] == base[1]
+    unlimited = decisions(FilterConfig(reveal_max_angle=None))
+    assert unlimited[1] != base[1]
+
+
+def test_parallax_angles_closed_form():
+    # Cameras on a circle of radius 2 round the origin, looking at it: at view 0's scene
+    # point (the origin, depth 2) the angle to camera j is its angle round the circle.
+    from clearsplat.cameras import Camera, look_at
+    K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
+    degrees = np.array([0.0, 10.0, 35.0, 90.0, 180.0])
+    cams = [Camera(K, look_at([2 * np.sin(np.radians(a)), 0.0, 2 * np.cos(np.radians(a))],
+                              [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]), 64, 48) for a in degrees]
+    angles = parallax_angles(cams, [2.0, 2.0, 1.0, 0.0, 2.0])
+    np.testing.assert_allclose(angles[0], degrees, atol=1e-9)
+    np.testing.assert_allclose(angles[4], 180.0 - degrees, atol=1e-9)
+    np.testing.assert_allclose(np.diag(angles), 0.0)
+    assert not angles[3].any()                    # no depth: nothing measured
+    # View 2's point lies halfway to the origin (O): in the triangle O, point P, camera 0
+    # the sides are |OP| = 1, |OC0| = 2 with 35 degrees at O; camera 2 lies straight behind P
+    # (away from O), so the angle at P is 180 degrees less the triangle's angle there.
+    side = np.sqrt(1 + 4 - 4 * np.cos(np.radians(35.0)))
+    inner = np.degrees(np.arccos((1 + side ** 2 - 4) / (2 * side)))
+    assert angles[2, 0] == pytest.approx(180.0 - inner, abs=1e-9)
+    assert angles[2, 0] > 35.0    # nearer the cameras, the same baseline subtends more
+
+
 def test_the_paper_presets_compare_with_the_composite():
-    for name in ("paper", "paper-local", "default", "exact", "fast"):
+    for name in ("paper", "paper-local"):
         assert FilterConfig.preset(name).reveal_reference == "composite"
-    video = FilterConfig.preset("video")
-    assert video.reveal_reference == "quantile" and video.leave_out == 1
+    for name in ("default", "exact", "fast", "video"):
+        config = FilterConfig.preset(name)
+        assert config.reveal_reference == "quantile" and config.reveal_max_angle == 30.0
+    assert FilterConfig.preset("video").leave_out == 1

@@ -149,6 +149,14 @@ def test_render_pair_rerender_and_tiles_touched(pair):
     assert_close(again, pv.render(keep=without))   # exact wherever a removal can change it
 
 
+def test_render_layers_match_native(pair):
+    pv, tv, g, _ = pair
+    code = np.random.default_rng(3).integers(-1, 3, size=len(g))
+    layers = [code == k for k in range(3)]
+    for a, b in zip(tv.render_layers(layers), pv.render_layers(layers)):
+        assert_close(a, b)
+
+
 @pytest.mark.parametrize("with_base", [False, True])
 def test_rerender_tiles_matches_native(pair, with_base):
     pv, tv, g, _ = pair

@@ -7,7 +7,7 @@ visible Gaussian (``Splat`` 48 B, ``Rect`` 8 B, index 4 B, ``cpp/raster.h``) plu
 prepared views that fit in ``FilterConfig.view_memory`` (plus the one being read and the one
 being prepared) and keeps an
 own-view mask (bool) and a packed visibility bit per view. Per input pixel it keeps the image,
-the full and exclusion renders, features, similarity maps, proposal masks and verification
+the full and exclusion renders, the reveal reference, features, similarity maps, proposal masks and verification
 buffers; per Gaussian the projection scratch (76 B, ``cpp/project.cpp``) and a few masks. The
 constants below make the estimate 5 to 15 % above the measured peak on the synthetic scenes
 (0.23 to 0.92 million Gaussians, 4 and 8 views).
@@ -34,8 +34,9 @@ PER_GAUSSIAN_PREPARED = 4
 PER_GAUSSIAN_VIEW = 1.125
 #: Bytes per Gaussian once: projection scratch (76 B) and the filter's masks.
 PER_GAUSSIAN = 100
-#: Bytes per input pixel: image, renders, features, maps and verification buffers (measured).
-PER_PIXEL = 360
+#: Bytes per input pixel: image, renders, features, maps and verification buffers (360,
+#: measured), and the reveal reference (rgb, alpha, depth and where it applies: 21).
+PER_PIXEL = 381
 #: Reading a binary PLY peaks at about this many times its size (bytes, columns, Gaussians,
 #: raw columns; 4.5 measured).
 READ_FACTOR_BINARY = 5

@@ -55,6 +55,7 @@ ABLATIONS = {
     "keep-removed-px": "default+verify_mask_removed=false",
     "remove-hidden": "default+verify_hidden=null",
     "hidden-fixed": "default+verify_hidden_widen=false",
+    "composite": "default+reveal_reference=composite",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
     "single<tau2": "default+single_threshold=true",
@@ -69,7 +70,7 @@ ABLATIONS = {
     "+align-depths": "default+align_depths=true",
     "+edge-tol": "default+edge_tolerance=1",
     "+expand-by-depth": "default+expand_color=false",
-    "+reveal-quantile": "default+reveal_reference=quantile",
+    "+reveal-any-angle": "default+reveal_max_angle=null",
     "video": "video",
 }
 

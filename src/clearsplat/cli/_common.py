@@ -66,9 +66,9 @@ PRESET_HELP = {
     "paper-local": "the paper's procedure with the weight-free 'local' features",
     "exact": "the default without its speed approximations (every view in every camera's "
              "renders, also from 24 views on)",
-    "video": "for the frames of a video, where a passer-by stays several frames: each view "
-             "is compared with the reveal reference and not verified by the frames next to it "
-             "(reveal_reference=quantile, leave_out=1; docs/method.md, \"Video\")",
+    "video": "for the frames of a video, where a passer-by stays several frames: the frames "
+             "next to each view are left out of its references and do not verify it "
+             "(leave_out=1; docs/method.md, \"Video\")",
     "fast": "one round, four neighbours per camera: 0.34-0.42 of the default's time at 8-16 "
             "views, finding less (the default's output up to five views; docs/method.md)",
 }

@@ -175,6 +175,25 @@ void composite_pair(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                              threads(num_threads));
 }
 
+void composite_layers(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
+                      In<int8_t> layer, int num_layers, int width, int height,
+                      In<float> background, Out<float> rgb, Out<float> alpha, Out<float> depth,
+                      int num_threads) {
+    const cs::ViewData v = view_of(splats, offsets, lists, width, height);
+    const int64_t px = int64_t(width) * height;
+    require(int64_t(layer.size()) == v.num, "layer size");
+    require(num_layers >= 0 && num_layers <= 127, "layer count");
+    require(int64_t(rgb.size()) == 3 * px * num_layers &&
+                int64_t(alpha.size()) == px * num_layers &&
+                int64_t(depth.size()) == px * num_layers && background.size() == 3,
+            "output sizes");
+    const int8_t* l = layer.data();
+    for (int64_t i = 0; i < v.num; ++i) require(l[i] < num_layers, "layer out of range");
+    nb::gil_scoped_release release;
+    cs::composite_image_layers(v, l, num_layers, background.data(), rgb.data(), alpha.data(),
+                               depth.data(), threads(num_threads));
+}
+
 void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
                        In<uint16_t> rects, In<uint8_t> keep, In<int64_t> removal_offsets,
                        In<int32_t> removal_ids, In<int64_t> task_offsets, In<int32_t> task_tiles,
@@ -346,6 +365,10 @@ NB_MODULE(_core, m) {
           "keep"_a, "tiles"_a, "width"_a, "height"_a, "background"_a, "rgb_a"_a, "alpha_a"_a, "depth_a"_a, "rgb_b"_a,
           "alpha_b"_a, "depth_b"_a, "num_threads"_a,
           "Composite the tiles twice in one pass: the Gaussians kept by keep_a (a), by keep (b).");
+    m.def("composite_layers", &composite_layers, "splats"_a, "offsets"_a, "lists"_a, "layer"_a,
+          "num_layers"_a, "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a,
+          "num_threads"_a,
+          "Composite every layer (the Gaussians with layer == k) into outputs[k], in one pass.");
     m.def("composite_patches", &composite_patches, "splats"_a, "offsets"_a, "lists"_a, "rects"_a,
           "keep"_a, "removal_offsets"_a, "removal_ids"_a, "task_offsets"_a, "task_tiles"_a,
           "width"_a, "height"_a, "background"_a, "base_rgb"_a, "base_alpha"_a, "base_depth"_a,

@@ -104,6 +104,25 @@ __attribute__((always_inline)) inline i8 reached(const Splat& gs, const TileStat
     return active & (alpha >= kMinAlpha);
 }
 
+// Adds `gs` (visible id `id`) to the pixels of its box inside the tile of `s`: the 3DGS rule per
+// pixel (reached, accumulate), eight pixels of a row at a time.
+__attribute__((always_inline)) inline void add_splat(TileState& s, const Splat& gs, int32_t id,
+                                                     std::vector<Entry>* record) {
+    const int lx0 = std::max(int(gs.bx0) - s.x0, 0), lx1 = std::min(int(gs.bx1) - s.x0, s.w - 1);
+    const int ly0 = std::max(int(gs.by0) - s.y0, 0), ly1 = std::min(int(gs.by1) - s.y0, s.h - 1);
+    for (int ly = ly0; ly <= ly1; ++ly) {
+        const float dy = gs.v - (float(s.y0 + ly) + 0.5f);
+        for (int start = lx0; start <= lx1; start += 8) {
+            const int base = std::min(start, kTile - 8);  // the 8 lanes stay in the row
+            const int p = ly * kTile + base;
+            const i8 done = load(s.done + p);
+            f8 alpha;
+            const i8 active = reached(gs, s, start, lx1, base, dy, done, alpha);
+            if (any(active)) accumulate(s, p, done, active, alpha, gs, id, record);
+        }
+    }
+}
+
 // Composites one tile's list into `s`, skipping ids with keep[id] == 0 and the ascending ids
 // in `removed`; appends every added contribution to `record` when given.
 //
@@ -125,20 +144,7 @@ void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int3
             while (ri < num_removed && removed[ri] < id) ++ri;
             if (ri < num_removed && removed[ri] == id) continue;
         }
-        const Splat& gs = v.splats[id];
-        const int lx0 = std::max(int(gs.bx0) - s.x0, 0), lx1 = std::min(int(gs.bx1) - s.x0, s.w - 1);
-        const int ly0 = std::max(int(gs.by0) - s.y0, 0), ly1 = std::min(int(gs.by1) - s.y0, s.h - 1);
-        for (int ly = ly0; ly <= ly1; ++ly) {
-            const float dy = gs.v - (float(s.y0 + ly) + 0.5f);
-            for (int start = lx0; start <= lx1; start += 8) {
-                const int base = std::min(start, kTile - 8);  // the 8 lanes stay in the row
-                const int p = ly * kTile + base;
-                const i8 done = load(s.done + p);
-                f8 alpha;
-                const i8 active = reached(gs, s, start, lx1, base, dy, done, alpha);
-                if (any(active)) accumulate(s, p, done, active, alpha, gs, id, record);
-            }
-        }
+        add_splat(s, v.splats[id], id, record);
     }
 }
 
@@ -177,6 +183,29 @@ void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
                 if (any(act_b)) accumulate(b, p, done_b, act_b, alpha, gs, id, nullptr);
             }
         }
+    }
+}
+
+// The tile's Gaussians of each layer into that layer's state, in one pass over its list:
+// layer[id] in [0, num_layers) picks the state, a negative value none. Each state is updated
+// exactly as composite_tile updates it with keep = (layer == k), so each equals that render
+// bit for bit; a Gaussian is evaluated once, for its own layer.
+CS_TARGET_CLONES
+void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, TileState* states,
+                           int num_layers) {
+    const int32_t* list = v.tile_lists + v.tile_offsets[tile];
+    const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
+    int live = 0;  // layers with a pixel still compositing
+    for (int l = 0; l < num_layers; ++l) live += states[l].remaining > 0;
+    for (int64_t k = 0; k < len && live > 0; ++k) {
+        if (k + kPrefetch < len && layer[list[k + kPrefetch]] >= 0)
+            prefetch_splat(v.splats + list[k + kPrefetch]);
+        const int32_t id = list[k];
+        const int l = layer[id];
+        if (l < 0 || states[l].remaining <= 0) continue;
+        TileState& s = states[l];
+        add_splat(s, v.splats[id], id, nullptr);
+        if (s.remaining <= 0) --live;
     }
 }
 
@@ -274,6 +303,31 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
                     finish_pixel(a, p, bg, rgb_a + 3 * q, alpha_a + q, depth_a + q);
                     finish_pixel(b, p, bg, rgb_b + 3 * q, alpha_b + q, depth_b + q);
                 }
+        }
+    }
+}
+
+void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
+                            const float bg[3], float* rgb, float* alpha, float* depth,
+                            int num_threads) {
+    const int64_t num_tiles = v.num_tiles();
+    const int64_t px = int64_t(v.width) * v.height;
+#pragma omp parallel num_threads(team_size(num_threads, num_tiles))
+    {
+        std::vector<TileState> states(size_t(std::max(num_layers, 1)));
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t tile = 0; tile < num_tiles; ++tile) {
+            for (int l = 0; l < num_layers; ++l) states[l].reset(v, int(tile), nullptr);
+            composite_tile_layers(v, int(tile), layer, states.data(), num_layers);
+            for (int l = 0; l < num_layers; ++l) {
+                const TileState& s = states[l];
+                for (int ly = 0; ly < s.h; ++ly)
+                    for (int lx = 0; lx < s.w; ++lx) {
+                        const int64_t q = int64_t(s.y0 + ly) * v.width + s.x0 + lx;
+                        finish_pixel(s, ly * kTile + lx, bg, rgb + 3 * (l * px + q),
+                                     alpha + l * px + q, depth + l * px + q);
+                    }
+            }
         }
     }
 }

@@ -116,6 +116,13 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
                           float* rgb_a, float* alpha_a, float* depth_a, float* rgb_b,
                           float* alpha_b, float* depth_b, int num_threads);
 
+// Every layer of a view in one pass over its tile lists: the Gaussians with layer[id] == k
+// (k < num_layers <= 127; negative: in none) into rgb[k] (K, H, W, 3), alpha[k] and depth[k]
+// (K, H, W) each; each equals its separate composite_image bit for bit.
+void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
+                            const float bg[3], float* rgb, float* alpha, float* depth,
+                            int num_threads);
+
 // Batched incremental compositing: task j re-composites tile task_tiles[j] for the removal
 // task_removal[j], skipping that removal's ids (CSR, sorted ascending per removal). With a base
 // (the full (H, W) render of `keep`; null for none), only the pixels inside the removed

@@ -189,6 +189,9 @@ class HeldView:
     def rerender(self, base, *, keep, **kwargs):
         return self._view.rerender(base, keep=self._k(keep), **kwargs)
 
+    def render_layers(self, layers, **kwargs):
+        return self._view.render_layers([self._k(m) for m in layers], **kwargs)
+
     def tiles_touched(self, gaussians):
         g = np.asarray(gaussians)
         g = g & self._held if g.dtype == np.bool_ else g[self._held[g]]

@@ -380,17 +380,16 @@ class FilterConfig:
         show him instead of the surface behind. 0: the paper (only view i's own).
     reveal_reference : {"composite", "quantile"}
         What the proposal (similarity and support) and refinement compare view i with.
-        ``"composite"`` (the default): the paper's R_i^-i. ``"quantile"``: the reveal
-        reference (:mod:`clearsplat.filter.reveal`): the ``reveal_views`` views that share the
-        most of view i's field of view, each rendered into camera i on its own, and per pixel
-        the one at the ``reveal_quantile`` of their depths (where at least
-        ``reveal_min_views`` of them cover it; R_i^-i elsewhere, so up to four input views the
-        output is the composite's). Transients stand in front of the static surface, so the
-        farther quantile still shows it where other views hold passers-by in front of it, as
-        R_i^-i does not: several neighbouring frames of a video hold the same one (the
-        ``video`` preset, with ``leave_out=1``). Not the default: on photographs taken around
-        an object at 8 views it also removes static content (docs/method.md, "Video").
-        Verification keeps R_i^-i.
+        ``"quantile"`` (the default): the reveal reference (:mod:`clearsplat.filter.reveal`):
+        the ``reveal_views`` views that share the most of view i's field of view and see its
+        scene from within ``reveal_max_angle``, each rendered into camera i on its own, and per
+        pixel the one at the ``reveal_quantile`` of their depths (where at least
+        ``reveal_min_views`` of them cover it; R_i^-i elsewhere, so up to four input views, or
+        where fewer views are that near, the output is the composite's). Transients stand in
+        front of the static surface, so the farther quantile still shows it where other views
+        hold passers-by in front of it, as R_i^-i does not: several neighbouring frames of a
+        video hold the same one, and every other view of a dense capture brings its own.
+        ``"composite"``: the paper's R_i^-i. Verification keeps R_i^-i.
     reveal_views : int
         Neighbours the reveal reference renders (``reveal_reference="quantile"``), among those
         that R_i^-i holds.
@@ -400,6 +399,12 @@ class FilterConfig:
     reveal_min_views : int
         Fewest covering neighbours for a pixel to take the reveal reference rather than
         R_i^-i.
+    reveal_max_angle : float or None
+        Degrees: the reveal reference takes only views whose camera centre lies within this
+        angle of view i's, seen from view i's scene point (its optical axis at the median
+        depth of its Gaussians; :func:`clearsplat.filter.reveal.parallax_angles`). Views
+        farther round see past the edges of what view i sees, and outvote its own surface
+        there (docs/method.md, "The reveal reference"). None: no limit.
     verify_views : {"auto", "centres", "mutual"}
         How each view's verification views V_i are chosen. ``"auto"``: ``"mutual"`` where
         ``neighbours`` (as ``"auto"`` resolves it) bounds the neighbourhoods, ``"centres"``
@@ -484,10 +489,11 @@ class FilterConfig:
     verify_hidden: float | None = 0.05
     verify_hidden_widen: bool = True
     leave_out: int = 0
-    reveal_reference: Literal["composite", "quantile"] = "composite"
+    reveal_reference: Literal["composite", "quantile"] = "quantile"
     reveal_views: int = 7
     reveal_quantile: float = 0.75
     reveal_min_views: int = 4
+    reveal_max_angle: float | None = 30.0
     backend: Literal["auto", "native", "gsplat", "torch"] = "auto"
 
     def __post_init__(self):
@@ -520,8 +526,8 @@ class FilterConfig:
         (``FilterConfig.preset("paper", checkpoint="/path/to/dinov3")``); ``"paper-local"`` is
         the paper's procedure with the weight-free ``"local"`` features. ``"exact"`` is the
         default without its approximations for dense captures (every view in every camera's
-        renders); ``"video"`` is for the frames of a video (``reveal_reference="quantile"``,
-        ``leave_out=1``; ``docs/method.md``, "Video"); ``"fast"`` trades recall for time (one
+        renders); ``"video"`` is for the frames of a video (``leave_out=1``; ``docs/method.md``,
+        "Video"); ``"fast"`` trades recall for time (one
         round, four neighbours per camera; ``docs/method.md``, "The fast preset").
         """
         if name not in PRESETS:
@@ -616,6 +622,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "reveal_views": FieldSpec("integer", 1),
     "reveal_quantile": FieldSpec("number", 0.0, 1.0),
     "reveal_min_views": FieldSpec("integer", 1),
+    "reveal_max_angle": FieldSpec("number", 0.0, 180.0, optional=True),
     "backend": FieldSpec("choice", choices=("auto", "native", "gsplat", "torch")),
 }
 
@@ -634,7 +641,8 @@ PRESETS = {
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres", verify_mask_removed=False,
-                          verify_hidden=None, verify_hidden_widen=False),
+                          verify_hidden=None, verify_hidden_widen=False,
+                          reveal_reference="composite"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
                                 refine="none", verify_mask="proposals", verify_holes="count",
@@ -648,15 +656,16 @@ PRESETS = {
                                 depth_scale_reach=0, rounds=1,
                                 refine_color_grow=None, neighbours=None,
                                 verify_views="centres", verify_mask_removed=False,
-                                verify_hidden=None, verify_hidden_widen=False),
+                                verify_hidden=None, verify_hidden_widen=False,
+                                reveal_reference="composite"),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense
     # captures").
     "exact": FilterConfig(neighbours=None, verify_views="centres"),
-    # The frames of a video: passers-by stay for several consecutive frames, so the proposal
-    # and refinement compare each view with the reveal reference, and the frames next to a
-    # view are left out of its exclusion render and its verification (docs/method.md, "Video").
-    "video": FilterConfig(reveal_reference="quantile", leave_out=1),
+    # The frames of a video: passers-by stay for several consecutive frames, so the frames
+    # next to a view are also left out of its exclusion render, its reveal reference and its
+    # verification (docs/method.md, "Video").
+    "video": FilterConfig(leave_out=1),
     # Faster than the default, finding less: one round, and each camera's renders hold the
     # four views that share the most of its field of view (docs/method.md, "The fast preset").
     "fast": FilterConfig(rounds=1, neighbours=4),

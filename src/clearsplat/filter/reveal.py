@@ -7,9 +7,11 @@ in a video the neighbouring frames hold the same person at nearly the same place
 R_i^-i shows him instead of the wall behind and reveals nothing (docs/method.md, "Video").
 
 Here each of the ``reveal_views`` other views that share the most of view i's field of view
-(:func:`clearsplat.filter.neighbours.covisibility`, ``C[i, j] + C[j, i]``) is rendered into
-camera i on its own (two per pass over the view's tile lists, ``render_pair``, each equal to
-its own render bit for bit). At each pixel the views that cover it (accumulated opacity above
+(:func:`clearsplat.filter.neighbours.covisibility`, ``C[i, j] + C[j, i]``) and see view i's
+scene from within ``reveal_max_angle`` (:func:`parallax_angles`; views farther round see past
+the edges of what view i sees) is rendered into camera i on its own (every neighbour in one
+pass over the view's tile lists, ``render_layers``, each equal to its own render bit for bit).
+At each pixel the views that cover it (accumulated opacity above
 0.5) give one expected depth each; transients only ever stand in front of the static surface, so
 the reference is the view at rank ``floor(q (n - 1))`` of the n depths in ascending order
 (``reveal_quantile`` q): with q = 0.75 it still shows the surface when up to three quarters
@@ -30,7 +32,8 @@ import numpy as np
 
 from ..render import RenderResult
 
-__all__ = ["MIN_ALPHA", "quantile_layers", "reveal_neighbours", "reveal_reference"]
+__all__ = ["MIN_ALPHA", "parallax_angles", "quantile_layers", "reveal_neighbours",
+           "reveal_reference", "typical_depths"]
 
 #: A neighbour covers a pixel where its own render's accumulated opacity exceeds this.
 MIN_ALPHA = 0.5
@@ -44,6 +47,42 @@ def reveal_neighbours(shared: np.ndarray, view: int, *, count: int,
                   if j != view and (allowed is None or allowed[j])]
     candidates.sort(key=lambda j: (-shared[view, j], j))
     return candidates[:count]
+
+
+def parallax_angles(cameras: list, depths: list) -> np.ndarray:
+    """(V, V) float, degrees: ``angles[i, j]`` is the angle at view i's scene point between the
+    rays to camera i's centre and camera j's; the scene point lies on camera i's optical axis
+    at ``depths[i]`` (its typical depth, e.g. the median camera depth of its Gaussians).
+    0 on the diagonal; where ``depths[i]`` is not positive, row i is 0 (nothing to measure).
+    """
+    centres = np.array([c.camera_to_world[:3, 3] for c in cameras], dtype=np.float64)
+    axes = np.array([c.camera_to_world[:3, 2] for c in cameras], dtype=np.float64)
+    out = np.zeros((len(cameras), len(cameras)))
+    for i, depth in enumerate(depths):
+        if not depth > 0:
+            continue
+        point = centres[i] + axes[i] * depth
+        to_i = centres[i] - point
+        to_j = centres - point
+        norms = np.linalg.norm(to_j, axis=1) * np.linalg.norm(to_i)
+        cos = np.divide(to_j @ to_i, norms, out=np.ones(len(cameras)), where=norms > 0)
+        out[i] = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        out[i, i] = 0.0
+    return out
+
+
+def typical_depths(scene, members: list | None = None) -> list[float]:
+    """Per view, the median camera depth of its own Gaussians in front of it (0 where it has
+    none): the depth :func:`parallax_angles` measures at. ``members``: per view, the indices
+    of its Gaussians (default: from ``scene.view_id``)."""
+    if members is None:
+        members = [np.flatnonzero(scene.view_id == v) for v in range(scene.num_views)]
+    out = []
+    for cam, ids in zip(scene.cameras, members):
+        z = cam.to_camera(scene.gaussians.means[ids])[:, 2]
+        z = z[z > 0]
+        out.append(float(np.median(z)) if z.size else 0.0)
+    return out
 
 
 def quantile_layers(depth: np.ndarray, alpha: np.ndarray, *, quantile: float,
@@ -85,11 +124,7 @@ def reveal_reference(view, layers: list, fallback: RenderResult, *, quantile: fl
     Returns the reference and (H, W) bool, where it is not ``fallback``'s."""
     if not layers:
         return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
-    renders = []
-    for k in range(0, len(layers) - 1, 2):    # two layers per pass over the tile lists
-        renders.extend(view.render_pair(keep=layers[k + 1], first=layers[k]))
-    if len(layers) % 2:
-        renders.append(view.render(keep=layers[-1]))
+    renders = view.render_layers(layers)     # one pass over the tile lists, natively
     depth = np.stack([r.depth for r in renders])
     alpha = np.stack([r.alpha for r in renders])
     layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)

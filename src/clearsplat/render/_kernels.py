@@ -17,7 +17,8 @@ import numpy as np
 
 from .. import _core
 
-__all__ = ["TILE", "project", "bin_tiles", "tiles_touched", "composite", "composite_patches",
+__all__ = ["TILE", "project", "bin_tiles", "tiles_touched", "composite", "composite_layers",
+           "composite_patches",
            "contributions", "max_threads", "sort_index"]
 
 #: Tile edge in pixels (``cs::kTile``).
@@ -122,6 +123,20 @@ def composite_pair(splats, offsets, lists, keep_a, keep, tiles, width: int, heig
                          _mask(keep_a), _mask(keep), _c(tiles, np.int32), int(width),
                          int(height), _c(background, np.float32), *outputs_a, *outputs_b,
                          int(num_threads))
+
+
+def composite_layers(splats, offsets, lists, layer, num_layers: int, width: int, height: int,
+                     background, num_threads: int):
+    """Composite every layer in one pass over the tile lists: the visible Gaussians with
+    ``layer == k`` ((V,) int8, negative: in none) into ``(rgb (K, H, W, 3), alpha (K, H, W),
+    depth (K, H, W))[k]``, each equal to its own :func:`composite` bit for bit."""
+    rgb = np.empty((num_layers, height, width, 3), dtype=np.float32)
+    alpha = np.empty((num_layers, height, width), dtype=np.float32)
+    depth = np.empty((num_layers, height, width), dtype=np.float32)
+    _core.composite_layers(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
+                           _c(layer, np.int8), int(num_layers), int(width), int(height),
+                           _c(background, np.float32), rgb, alpha, depth, int(num_threads))
+    return rgb, alpha, depth
 
 
 def composite_patches(splats, offsets, lists, rects, keep, removal_offsets, removal_ids,
