@@ -9,6 +9,7 @@ all of them at 256x448.
 Usage::
 
     python benchmarks/render_speed.py [--repeats 5] [--threads 1 2]
+    python benchmarks/render_speed.py --layers       # render_layers against two per pass
 
 Prints, per thread count, the median over the 8 cameras of the median milliseconds of a full
 render (wall clock, and the process CPU time it used), of prepare alone (projection, depth
@@ -16,6 +17,11 @@ sort, tile binning) and of compositing alone; also the mean absolute difference 
 render and the ray-cast image of that view (a sanity check that the scene renders as built).
 Last, the full render in gsplat's antialiased mode (eps2d 0.1) and the PSNR between classic and
 antialiased renders of the same views.
+
+With ``--layers``, instead: every camera renders each of the other seven views' Gaussians on its
+own (as the filter's reveal reference does), once with ``PreparedView.render_layers`` (one pass
+over the tile lists) and once two per ``render_pair`` (the route of the other backends); the
+medians over cameras of their median milliseconds, and whether the results are equal.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from clearsplat.cameras import look_at
 from clearsplat.render import prepare, render
 from clearsplat.metrics import psnr
 from clearsplat.render._kernels import max_threads
+from clearsplat.render.base import _TiledView
 from clearsplat.scene import rgb_to_sh_dc
 
 WIDTH, HEIGHT, FOCAL = 448, 256, 400.0
@@ -109,13 +116,36 @@ def median_ms(fn, repeats: int) -> tuple[float, float]:
     return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
 
 
+def layer_speed(repeats: int) -> None:
+    """Each camera renders the other views' Gaussians, one view at a time: one pass against two
+    per render_pair."""
+    scene, _ = build_scene()
+    one, pairs, same = [], [], True
+    for i, cam in enumerate(scene.cameras):
+        view = prepare(scene, cam)
+        layers = [scene.view_id == j for j in range(len(scene.cameras)) if j != i]
+        one.append(median_ms(lambda: view.render_layers(layers), repeats)[0])
+        pairs.append(median_ms(lambda: _TiledView.render_layers(view, layers), repeats)[0])
+        a, b = view.render_layers(layers), _TiledView.render_layers(view, layers)
+        same &= all(np.array_equal(x, y) for ra, rb in zip(a, b) for x, y in zip(ra, rb))
+    print(f"{len(scene):,} Gaussians, {len(scene.cameras)} cameras, 7 layers each, "
+          f"{max_threads()} threads: render_layers {np.median(one):.1f} ms, two per "
+          f"render_pair {np.median(pairs):.1f} ms (ratio {np.median(one) / np.median(pairs):.2f});"
+          f" equal: {same}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=5, help="renders per camera and setting")
     parser.add_argument("--threads", type=int, nargs="*", default=None,
                         help="thread counts to time (default: 1 and all cores)")
+    parser.add_argument("--layers", action="store_true",
+                        help="time render_layers against two layers per render_pair instead")
     args = parser.parse_args()
     threads = args.threads or sorted({1, max_threads()})
+    if args.layers:
+        layer_speed(args.repeats)
+        return
 
     t = time.perf_counter()
     scene, images = build_scene()

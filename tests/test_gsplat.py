@@ -283,6 +283,11 @@ def test_gsplat_view_equals_prepared_view(fake_gsplat):
             _assert_same(r, pv.render(keep=keep, background=bg))
         for r, s in zip(gv.render_many(keeps, background=bg, batch_size=1), many):
             _assert_same(r, s, exact_depth=True)
+        code = rng.integers(-1, 3, size=n)
+        layers = [code == k for k in range(3)]
+        for r, s in zip(gv.render_layers(layers, background=bg),
+                        pv.render_layers(layers, background=bg)):
+            _assert_same(r, s)
 
         own = rng.uniform(size=n) > 0.6
         first = rng.uniform(size=n) > 0.1
