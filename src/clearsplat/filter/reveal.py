@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..render import RenderResult
+from .association import view_members
 
 __all__ = ["MIN_ALPHA", "parallax_angles", "quantile_layers", "reveal_neighbours",
            "reveal_reference", "typical_depths"]
@@ -76,7 +77,7 @@ def typical_depths(scene, members: list | None = None) -> list[float]:
     none): the depth :func:`parallax_angles` measures at. ``members``: per view, the indices
     of its Gaussians (default: from ``scene.view_id``)."""
     if members is None:
-        members = [np.flatnonzero(scene.view_id == v) for v in range(scene.num_views)]
+        members = view_members(scene)
     out = []
     for cam, ids in zip(scene.cameras, members):
         z = cam.to_camera(scene.gaussians.means[ids])[:, 2]
