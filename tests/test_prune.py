@@ -107,6 +107,14 @@ def test_pruning_drops_hidden_entries_and_guards_its_floor(street):
         small.rerender_tiles(keep=~own, removals=[outside])
     with pytest.raises(ClearsplatError, match="pruned"):
         small.contributions(np.ones((48, 80), bool), keep=own)
+    # Layers: one layer holding the whole floor renders as before; any split is refused.
+    everything = np.zeros(len(street), dtype=np.int8)
+    _same(small.render_layers(everything)[0], full.render())
+    _same(small.render_layers([np.ones(len(street), bool)])[0], full.render())
+    for layers in (np.where(np.arange(len(street)) % 2 == 0, 0, 1), [floor, ~floor],
+                   np.where(keep, 0, -1)):
+        with pytest.raises(ClearsplatError, match="pruned"):
+            small.render_layers(layers)
     # Floors add up: pruning again keeps the first floor too.
     again = small.pruned(floor | own)
     _same(again.render(keep=floor | own), full.render(keep=floor | own))

@@ -401,6 +401,15 @@ def test_render_layers_equal_one_render_each(world, count, threads):
         assert_same(got[k], one)
         assert_same(generic[k], one)
     assert view.render_layers([]) == []
+    # The same layers as one array of layer ids (-1 and below mapped to -1), both routes.
+    ids = np.where(code < 0, -1, code).astype(np.int16)
+    by_id = view.render_layers(ids, background=(0.2, 0.3, 0.4))
+    generic_ids = _TiledView.render_layers(view, ids, background=(0.2, 0.3, 0.4))
+    assert len(by_id) == len(generic_ids) == count
+    for k in range(count):
+        assert_same(by_id[k], got[k])
+        assert_same(generic_ids[k], got[k])
+    assert view.render_layers(np.full(n, -1)) == []
 
 
 def test_render_layers_reject_overlap_and_bad_masks(world):
@@ -414,6 +423,11 @@ def test_render_layers_reject_overlap_and_bad_masks(world):
         view.render_layers([half, np.ones(n - 1, bool)])
     with pytest.raises(ClearsplatError, match="at most 127"):
         view.render_layers([np.zeros(n, bool)] * 128)
+    ids = np.zeros(n, dtype=np.int64)
+    for bad, match in ((ids[:-1], "int array"), (ids.astype(np.float32), "int array"),
+                       (np.where(half, 127, -1), "-1..126"), (np.where(half, 0, -2), "-1..126")):
+        with pytest.raises(ClearsplatError, match=match):
+            view.render_layers(bad)
 
 
 def test_rerender_equals_full_render(world):

@@ -1,12 +1,15 @@
 """The reveal reference (``FilterConfig.reveal_reference="quantile"``): the per-pixel rank
 against a loop and closed cases, the renders it is made of, and the filter with it."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.neighbours import covisibility
+from clearsplat.filter.refine import _tiles_of, static_reference
 from clearsplat.filter.reveal import (MIN_ALPHA, parallax_angles, quantile_layers,
                                       reveal_neighbours, reveal_reference)
 from clearsplat.metrics import removal_stats
@@ -106,6 +109,14 @@ def test_reveal_reference_takes_each_pixel_from_one_neighbours_own_render(video)
         for a, b in zip(out, src):
             np.testing.assert_array_equal(a[y, x], b[y, x])
     assert isinstance(out, RenderResult) and out.rgb.dtype == np.float32
+    # The same neighbours as one array of layer ids: the same reference.
+    ids = np.full(len(scene), -1, dtype=np.int8)
+    for k, j in enumerate(others):
+        ids[scene.view_id == j] = k
+    by_id, valid_by_id = reveal_reference(view, ids, fallback, quantile=0.75, min_views=4)
+    np.testing.assert_array_equal(valid_by_id, valid)
+    for a, b in zip(by_id, out):
+        np.testing.assert_array_equal(a, b)
     # Fewer neighbours than min_views: R_i^-i itself, every pixel.
     same, valid = reveal_reference(view, layers[:3], fallback, quantile=0.75, min_views=4)
     assert not valid.any()
@@ -234,3 +245,52 @@ def test_the_paper_presets_compare_with_the_composite():
         config = FilterConfig.preset(name)
         assert config.reveal_reference == "quantile" and config.reveal_max_angle == 30.0
     assert FilterConfig.preset("video").leave_out == 1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tiles_of_a_mask_match_a_loop(seed):
+    rng = np.random.default_rng(seed)
+    h, w = 37, 50                                  # not multiples of the tile size
+    mask = rng.random((h, w)) > 0.995
+    rows, cols = -(-h // 16), -(-w // 16)
+    expected = [r * cols + c for r in range(rows) for c in range(cols)
+                if mask[16 * r:16 * r + 16, 16 * c:16 * c + 16].any()]
+    got = _tiles_of(mask, (rows, cols), 16)
+    assert got.dtype == np.int32 and got.tolist() == expected
+    assert _tiles_of(np.zeros((h, w), bool), (rows, cols), 16).size == 0
+
+
+def test_the_static_reference_composites_only_the_tiles_it_is_read_in(video):
+    # With ``needed``, the reference equals the full one in every tile holding a needed pixel
+    # and is R_i^-i's in the others (the reveal reference replaces it there).
+    scene, truth = video
+    views = [prepare(scene, cam) for cam in scene.cameras]
+    own = [scene.view_id == i for i in range(scene.num_views)]
+
+    class Views(list):
+        def sees(self, i, gaussians):
+            return bool(gaussians.any())
+
+    state = SimpleNamespace(views=Views(views), own=own, num_views=scene.num_views)
+    excl = [v.render(keep=~o) for v, o in zip(views, own)]
+    proposed = truth | (np.random.default_rng(0).random(len(scene)) < 0.05)
+    rng = np.random.default_rng(1)
+    needed = [np.zeros(e.alpha.shape, bool) for e in excl]
+    for m in needed:
+        m[rng.integers(0, m.shape[0], 3), rng.integers(0, m.shape[1], 3)] = True
+    full_d, full_c = static_reference(state, excl, proposed)
+    part_d, part_c = static_reference(state, excl, proposed, needed=needed)
+    changed = 0
+    for i, view in enumerate(views):
+        tiles = _tiles_of(needed[i], view.grid, view.tile_size)
+        inside = np.zeros(view.num_tiles, bool)
+        inside[tiles] = True
+        flat, exists = view.tile_pixels(np.arange(view.num_tiles))
+        in_needed = np.zeros(excl[i].alpha.size, bool)
+        in_needed[flat[exists]] = np.repeat(inside, view.tile_size ** 2)[exists]
+        in_needed = in_needed.reshape(excl[i].alpha.shape)
+        np.testing.assert_array_equal(part_d[i][in_needed], full_d[i][in_needed])
+        np.testing.assert_array_equal(part_c[i][in_needed], full_c[i][in_needed])
+        np.testing.assert_array_equal(part_d[i][~in_needed], excl[i].depth[~in_needed])
+        changed += int((full_d[i][~in_needed] != part_d[i][~in_needed]).sum())
+    assert changed > 0      # the skipped tiles did differ: the test can tell them apart

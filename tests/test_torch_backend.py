@@ -155,6 +155,10 @@ def test_render_layers_match_native(pair):
     layers = [code == k for k in range(3)]
     for a, b in zip(tv.render_layers(layers), pv.render_layers(layers)):
         assert_close(a, b)
+    by_id = tv.render_layers(code)
+    assert len(by_id) == 3
+    for a, b in zip(by_id, pv.render_layers(layers)):
+        assert_close(a, b)
 
 
 @pytest.mark.parametrize("with_base", [False, True])

@@ -190,6 +190,8 @@ class HeldView:
         return self._view.rerender(base, keep=self._k(keep), **kwargs)
 
     def render_layers(self, layers, **kwargs):
+        if isinstance(layers, np.ndarray) and layers.dtype != np.bool_:   # layer ids
+            return self._view.render_layers(np.where(self._held, layers, -1), **kwargs)
         return self._view.render_layers([self._k(m) for m in layers], **kwargs)
 
     def tiles_touched(self, gaussians):

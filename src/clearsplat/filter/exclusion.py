@@ -110,9 +110,11 @@ def _reveal(state, shared: np.ndarray, near: np.ndarray | None, i: int, r_excl):
     if near is not None:
         allowed = allowed & near[i]
     others = reveal_neighbours(shared, i, count=config.reveal_views, allowed=allowed)
-    # Each neighbour's Gaussians from its members (not a comparison over every Gaussian).
-    views = np.arange(state.num_views)
-    layers = [state.index.views_mask(views == j, state.n) for j in others]
+    # Each neighbour's Gaussians from its members (not a comparison over every Gaussian),
+    # as one array of layer ids rather than a mask per neighbour.
+    layers = np.full(state.n, -1, dtype=np.int8)
+    for k, j in enumerate(others):
+        layers[state.index.members[j]] = k
     return reveal_reference(state.views[i], layers, r_excl,
                             quantile=config.reveal_quantile,
                             min_views=config.reveal_min_views)

@@ -411,7 +411,11 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
-        depths, rgbs = static_reference(state, renders.excl, proposed)
+        # The reveal reference replaces the static one wherever it applies: only the other
+        # pixels' tiles are composited again.
+        needed = (None if renders.reveal is None
+                  else [~valid for valid in renders.reveal_valid])
+        depths, rgbs = static_reference(state, renders.excl, proposed, needed=needed)
         if renders.reveal is not None:
             _overlay_reveal(depths, rgbs, renders)
         reference = _tolerant(state, depths, rgbs, radii)
@@ -427,19 +431,27 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     return revealing, distances, in_front
 
 
-def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, list]:
+def static_reference(state, excl: list, proposed: np.ndarray, *,
+                     needed: list | None = None) -> tuple[list, list]:
     """Per view i, the depth and colour of R_i^-i without the ``proposed`` Gaussians ((N,)
     bool): ``(depths, rgbs)``, (H, W) and (H, W, 3) each. Where that leaves a hole the depth
-    falls back to R_i^-i's; colours are NaN where the other views do not cover the pixel."""
+    falls back to R_i^-i's; colours are NaN where the other views do not cover the pixel.
+
+    ``needed``: per view, (H, W) bool, the pixels whose reference is read (None: all). Tiles
+    without any are not composited again: there the reference is R_i^-i's."""
     views, own = state.views, state.own
     reference, reference_rgb = [], []
     for i in range(state.num_views):
         others = proposed & ~own[i]
+        tiles = None
         if views.sees(i, others):
             pv = views[i]
-            static = pv.rerender(excl[i], keep=~(own[i] | proposed),
-                                 tiles=pv.tiles_touched(others))
-        else:   # nothing proposed in this view: the reference is R_i^-i itself
+            tiles = pv.tiles_touched(others)
+            if needed is not None:
+                tiles = np.intersect1d(tiles, _tiles_of(needed[i], pv.grid, pv.tile_size))
+        if tiles is not None and tiles.size:
+            static = pv.rerender(excl[i], keep=~(own[i] | proposed), tiles=tiles)
+        else:   # nothing proposed in this view (or nowhere needed): R_i^-i itself
             static = excl[i]
         # Where the proposals of the other views leave a hole, fall back to R_i^-i.
         solid = static.alpha > _STATIC_MIN_ALPHA
@@ -449,6 +461,16 @@ def static_reference(state, excl: list, proposed: np.ndarray) -> tuple[list, lis
         covered = static.alpha >= _COLOR_MIN_ALPHA
         reference_rgb.append(np.where(covered[..., None], static.rgb, np.nan))
     return reference, reference_rgb
+
+
+def _tiles_of(mask: np.ndarray, grid: tuple, size: int) -> np.ndarray:
+    """Ids (int32, ascending) of the ``size``-pixel tiles of a ``grid`` (rows, columns) that
+    hold any pixel of ``mask`` ((H, W) bool)."""
+    rows, cols = grid
+    padded = np.zeros((rows * size, cols * size), dtype=bool)
+    padded[:mask.shape[0], :mask.shape[1]] = mask
+    return np.flatnonzero(padded.reshape(rows, size, cols, size).any(axis=(1, 3))) \
+        .astype(np.int32)
 
 
 def _overlay_reveal(depths: list, rgbs: list, renders) -> None:

@@ -116,16 +116,18 @@ def quantile_layers(depth: np.ndarray, alpha: np.ndarray, *, quantile: float,
     return layer, n >= max(min_views, 1)
 
 
-def reveal_reference(view, layers: list, fallback: RenderResult, *, quantile: float,
+def reveal_reference(view, layers, fallback: RenderResult, *, quantile: float,
                      min_views: int) -> tuple[RenderResult, np.ndarray]:
-    """View i's reveal reference: its prepared view ``view`` rendered with each mask of
-    ``layers`` ((N,) bool each: one neighbour's Gaussians) on its own, the layer that
-    :func:`quantile_layers` picks per pixel, and ``fallback`` (R_i^-i) where it picks none.
+    """View i's reveal reference: its prepared view ``view`` rendered with each of ``layers``
+    (one neighbour's Gaussians each: a list of (N,) bool masks, or an (N,) int array of layer
+    ids, -1 for none, as :meth:`~clearsplat.render.PreparedView.render_layers` takes them) on
+    its own, the layer that :func:`quantile_layers` picks per pixel, and ``fallback``
+    (R_i^-i) where it picks none.
 
     Returns the reference and (H, W) bool, where it is not ``fallback``'s."""
-    if not layers:
-        return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
     renders = view.render_layers(layers)     # one pass over the tile lists, natively
+    if not renders:
+        return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
     depth = np.stack([r.depth for r in renders])
     alpha = np.stack([r.alpha for r in renders])
     layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)

@@ -139,20 +139,38 @@ def _check_keep(keep, n: int, field: str = "keep") -> np.ndarray | None:
 
 
 
-def _check_layers(layers, n: int) -> list:
-    """``layers`` as a list of (n,) bool masks, each checked; at most 127, disjoint."""
-    layers = [_check_keep(m, n, f"layers[{k}]") for k, m in enumerate(layers)]
-    if any(m is None for m in layers):
+def _check_layers(layers, n: int) -> tuple[np.ndarray, int]:
+    """``layers`` as (n,) int8 labels, each Gaussian's layer (-1: none), and the layer count.
+
+    ``layers``: a sequence of disjoint (n,) bool masks (layer k: mask k), or an (n,) integer
+    array of layer ids (-1: none; layers 0 to its largest id). At most 127 layers.
+    """
+    if isinstance(layers, np.ndarray) and layers.dtype != np.bool_:
+        if not np.issubdtype(layers.dtype, np.integer) or layers.shape != (n,):
+            raise ClearsplatError(f"expected an ({n},) int array of layer ids or a list of "
+                                  f"(N,) bool masks, got {layers.dtype} {layers.shape}",
+                                  field="layers")
+        top = int(layers.max()) if n else -1
+        if n and (top > 126 or int(layers.min()) < -1):
+            raise ClearsplatError("layer ids must lie in -1..126 (at most 127 layers)",
+                                  field="layers")
+        return np.ascontiguousarray(layers, dtype=np.int8), top + 1
+    masks = [_check_keep(m, n, f"layers[{k}]") for k, m in enumerate(layers)]
+    if any(m is None for m in masks):
         raise ClearsplatError("expected (N,) bool masks, not None", field="layers")
-    if len(layers) > 127:
-        raise ClearsplatError(f"at most 127 layers, got {len(layers)}", field="layers")
-    if len(layers) > 1:
-        count = np.zeros(n, dtype=np.uint8)        # at most 127 layers: no overflow
-        for m in layers:
-            count += m
-        if (count > 1).any():
+    if len(masks) > 127:
+        raise ClearsplatError(f"at most 127 layers, got {len(masks)}", field="layers")
+    labels = np.full(n, -1, dtype=np.int8)
+    for k, m in enumerate(masks):
+        if len(masks) > 1 and (labels[m] >= 0).any():
             raise ClearsplatError("a Gaussian is in more than one layer", field="layers")
-    return layers
+        labels[m] = k
+    return labels, len(masks)
+
+
+def _layer_masks(labels: np.ndarray, count: int) -> list:
+    """The (n,) bool mask of each of ``count`` layers of :func:`_check_layers`' labels."""
+    return [labels == k for k in range(count)]
 
 
 def _check_near(near) -> float:
@@ -234,15 +252,16 @@ class _TiledView:
 
         Parameters
         ----------
-        layers : sequence of (N,) bool
-            Disjoint subsets of the Gaussians (at most 127).
+        layers : sequence of (N,) bool, or (N,) int
+            Disjoint subsets of the Gaussians (at most 127): one mask per layer, or each
+            Gaussian's layer id (-1: in none; layers 0 to the largest id).
         background : 3 floats
 
         Returns
         -------
         list of RenderResult, one per layer
         """
-        layers = _check_layers(layers, self.num_gaussians)
+        layers = _layer_masks(*_check_layers(layers, self.num_gaussians))
         out = []
         for k in range(0, len(layers) - 1, 2):
             out.extend(self.render_pair(keep=layers[k + 1], first=layers[k],

@@ -52,7 +52,7 @@ from ..scene import Gaussians, RenderSettings, Scene
 from ._gsplat_call import batch_layout, import_gsplat, rasterize, tensor
 from .base import (TILE, Contributions, RenderResult, _check_background, _check_camera,
                    _check_gaussians, _check_indices, _check_keep, _check_layers, _check_near,
-                   _check_settings, _gaussians, _TiledView)
+                   _check_settings, _gaussians, _layer_masks, _TiledView)
 from .native import PreparedView, check_threads, prepare_view
 
 __all__ = ["render_gsplat", "upload_gaussians", "DeviceGaussians", "GsplatView",
@@ -547,9 +547,9 @@ class GsplatView(_TiledView):
         return self._render_keeps(keeps, bg, batch_size)
 
     def render_layers(self, layers, *, background=(0.0, 0.0, 0.0)) -> list[RenderResult]:
-        """Each of ``layers`` ((N,) bool each, disjoint, at most 127) rendered on its own: one
-        :meth:`render_many`."""
-        return self.render_many(_check_layers(layers, self.num_gaussians),
+        """Each of ``layers`` (disjoint: (N,) bool masks, or (N,) int layer ids with -1 for
+        none; at most 127) rendered on its own: one :meth:`render_many`."""
+        return self.render_many(_layer_masks(*_check_layers(layers, self.num_gaussians)),
                                 background=background)
 
     def render_pair(self, *, keep, first=None, tiles=None, start: RenderResult | None = None,

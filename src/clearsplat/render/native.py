@@ -197,24 +197,32 @@ class PreparedView(_TiledView):
         return out
 
     def render_layers(self, layers, *, background=(0.0, 0.0, 0.0)) -> list:
-        """Each of ``layers`` ((N,) bool each, disjoint, at most 127) rendered on its own, in
-        one pass over the tile lists: equal, bit for bit, to ``[self.render(keep=m) for m in
-        layers]``, and each Gaussian's footprint is evaluated once, for its own layer.
+        """Each of ``layers`` rendered on its own, in one pass over the tile lists: equal, bit
+        for bit, to ``[self.render(keep=m) for m in layers]``, and each Gaussian's footprint
+        is evaluated once, for its own layer.
+
+        Parameters
+        ----------
+        layers : sequence of (N,) bool, or (N,) int
+            Disjoint subsets of the Gaussians (at most 127): one mask per layer, or each
+            Gaussian's layer id (-1: in none; layers 0 to the largest id), which is cheaper.
+        background : 3 floats
 
         Returns
         -------
         list of RenderResult, one per layer
         """
-        layers = _check_layers(layers, self.num_gaussians)
+        labels, count = _check_layers(layers, self.num_gaussians)
         bg = _check_background(background)
-        code = np.full(self.num_visible, -1, dtype=np.int8)
-        for k, mask in enumerate(layers):
-            code[self._keep(mask, f"layers[{k}]")] = k
+        code = labels[self._index]
+        if (self._floor is not None and count and self._floor.any()
+                and (count > 1 or (code[self._floor] != 0).any())):
+            raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
+                                  "its floor, and a layer leaves some out", field="layers")
         h, w = self.camera.height, self.camera.width
         rgb, alpha, depth = _kernels.composite_layers(self._splats, self._offsets, self._lists,
-                                                      code, len(layers), w, h, bg,
-                                                      self._num_threads)
-        return [RenderResult(rgb[k], alpha[k], depth[k]) for k in range(len(layers))]
+                                                      code, count, w, h, bg, self._num_threads)
+        return [RenderResult(rgb[k], alpha[k], depth[k]) for k in range(count)]
 
     def render_pair(self, *, keep, first=None, tiles=None, start: RenderResult | None = None,
                     background=(0.0, 0.0, 0.0)) -> tuple[RenderResult, RenderResult]:
