@@ -39,17 +39,26 @@ def covisibility(scene: Scene, *, samples: int = _SAMPLES) -> np.ndarray:
     v_count = scene.num_views
     out = np.zeros((v_count, v_count))
     means = scene.gaussians.means
-    for v, members in enumerate(view_members(scene)):
-        if members.size == 0:
-            continue
-        pick = members[np.linspace(0, members.size - 1, min(samples, members.size)).astype(int)]
-        pts = means[pick].astype(np.float64)
-        for j, cam in enumerate(scene.cameras):
-            uv, z = cam.project(pts)
-            with np.errstate(invalid="ignore"):
-                inside = ((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width)
-                          & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height))
-            out[j, v] = np.count_nonzero(inside) / pick.size
+    picks = []
+    for members in view_members(scene):
+        picks.append(members[np.linspace(0, members.size - 1,
+                                         min(samples, members.size)).astype(int)])
+    sizes = np.array([p.size for p in picks])
+    if not sizes.any():
+        return out
+    # Every view's sample at once, per camera (the arithmetic of Camera.project).
+    pts = means[np.concatenate(picks)].astype(np.float64)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    has = sizes > 0
+    for j, cam in enumerate(scene.cameras):
+        pc = cam.to_camera(pts)
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = cam.K[0, 0] * pc[:, 0] / z + cam.K[0, 2]
+            v = cam.K[1, 1] * pc[:, 1] / z + cam.K[1, 2]
+            inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        counts = np.add.reduceat(inside.astype(np.int64), starts[has])
+        out[j, has] = counts / sizes[has]
     return out
 
 
