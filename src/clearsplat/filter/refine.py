@@ -454,13 +454,14 @@ def static_renders(state, excl: list, proposed: np.ndarray, *, needed: list | No
     ``earlier``: ``(proposed, renders)`` of an earlier call with the same ``excl`` and
     ``needed``, whose ``proposed`` holds this one: each view starts from its earlier render
     where the Gaussians given back touch fewer tiles than those still proposed (both
-    exact)."""
+    exact); the earlier renders are dropped from their list as they are read."""
     views, own = state.views, state.own
     out = []
     for i in range(state.num_views):
         bases = [(excl[i], proposed & ~own[i])]
         if earlier is not None:
             bases.append((earlier[1][i], earlier[0] & ~proposed & ~own[i]))
+            earlier[1][i] = None
         best = None
         for base, changed in bases:
             tiles = np.empty(0, dtype=np.int32)
