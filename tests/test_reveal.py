@@ -9,7 +9,7 @@ import pytest
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.neighbours import covisibility
-from clearsplat.filter.refine import _tiles_of, static_reference, static_renders
+from clearsplat.filter.refine import _tiles_of, static_reference
 from clearsplat.filter.reveal import (MIN_ALPHA, parallax_angles, quantile_layers,
                                       reveal_neighbours, reveal_reference)
 from clearsplat.metrics import removal_stats
@@ -294,20 +294,3 @@ def test_the_static_reference_composites_only_the_tiles_it_is_read_in(video):
         np.testing.assert_array_equal(part_d[i][~in_needed], excl[i].depth[~in_needed])
         changed += int((full_d[i][~in_needed] != part_d[i][~in_needed]).sum())
     assert changed > 0      # the skipped tiles did differ: the test can tell them apart
-    # A later pass from the earlier one's renders, giving some Gaussians back: the same
-    # renders as composited afresh, bit for bit (exact everywhere without ``needed``).
-    fewer = proposed & (np.random.default_rng(2).random(len(scene)) < 0.5)
-    for need in (None, needed):
-        first = static_renders(state, excl, proposed, needed=need)
-        kept = list(first)
-        again = static_renders(state, excl, fewer, needed=need, earlier=(proposed, first))
-        assert all(r is None for r in first)      # dropped as they are read
-        fresh = static_renders(state, excl, fewer, needed=need)
-        for a, b, f in zip(again, fresh, kept):
-            for x, y in zip(a, b):
-                np.testing.assert_array_equal(x, y)
-        assert any((a.depth != f.depth).any() for a, f in zip(again, kept))
-    first = static_renders(state, excl, proposed)
-    again = static_renders(state, excl, fewer, earlier=(proposed, first))
-    for r, view, o in zip(again, views, own):
-        np.testing.assert_array_equal(r.depth, view.render(keep=~(o | fewer)).depth)

@@ -20,10 +20,10 @@ from .association import ViewIndex
 from .masks import label8, touched_components
 from .robust import misregistration, tolerant_reference
 
-__all__ = ["Refinement", "refine", "static_reference", "static_renders", "revealing_gaussians",
-           "widened_margin", "join_touching", "member_depths", "member_pixels", "centre_pixels",
-           "pixels_of", "removed_pixels", "box_distance", "color_distances",
-           "explained_candidates"]
+__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
+           "join_touching", "member_depths", "member_pixels", "centre_pixels", "pixels_of",
+           "removed_pixels",
+           "box_distance", "color_distances", "explained_candidates"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -406,18 +406,16 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     revealing = distances = in_front = None
     members = member_depths(state.scene, state.index)     # the same in every pass
     explain = config.color_explained is not None and config.verify
-    # The reveal reference replaces the static one wherever it applies: only the other
-    # pixels' tiles are composited again.
-    needed = None if renders.reveal is None else [~valid for valid in renders.reveal_valid]
-    earlier = None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
         # Each later pass (``refine_passes``) builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
-        # by some view (around another view's distractor) stays in the reference; it starts
-        # from the previous pass's renders.
-        statics = static_renders(state, renders.excl, proposed, needed=needed, earlier=earlier)
-        depths, rgbs = _reference_maps(statics, renders.excl)
+        # by some view (around another view's distractor) stays in the reference.
+        # The reveal reference replaces the static one wherever it applies: only the other
+        # pixels' tiles are composited again.
+        needed = (None if renders.reveal is None
+                  else [~valid for valid in renders.reveal_valid])
+        depths, rgbs = static_reference(state, renders.excl, proposed, needed=needed)
         if renders.reveal is not None:
             _overlay_reveal(depths, rgbs, renders)
         reference = _tolerant(state, depths, rgbs, radii)
@@ -429,7 +427,6 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                                         scale_depths=_scale_depths(state, depths),
                                         by_depth=last and not config.expand_color,
                                         margins=margins)
-        earlier = (proposed.copy(), statics)
         proposed &= revealing
     return revealing, distances, in_front
 
@@ -442,52 +439,23 @@ def static_reference(state, excl: list, proposed: np.ndarray, *,
 
     ``needed``: per view, (H, W) bool, the pixels whose reference is read (None: all). Tiles
     without any are not composited again: there the reference is R_i^-i's."""
-    return _reference_maps(static_renders(state, excl, proposed, needed=needed), excl)
-
-
-def static_renders(state, excl: list, proposed: np.ndarray, *, needed: list | None = None,
-                   earlier: tuple | None = None) -> list:
-    """Per view i, R_i^-i without the ``proposed`` Gaussians ((N,) bool), a RenderResult,
-    exact in every tile holding a pixel of ``needed[i]`` ((H, W) bool; None: everywhere) and
-    R_i^-i's elsewhere.
-
-    ``earlier``: ``(proposed, renders)`` of an earlier call with the same ``excl`` and
-    ``needed``, whose ``proposed`` holds this one: each view starts from its earlier render
-    where the Gaussians given back touch fewer tiles than those still proposed (both
-    exact); the earlier renders are dropped from their list as they are read."""
     views, own = state.views, state.own
-    out = []
-    for i in range(state.num_views):
-        bases = [(excl[i], proposed & ~own[i])]
-        if earlier is not None:
-            bases.append((earlier[1][i], earlier[0] & ~proposed & ~own[i]))
-            earlier[1][i] = None
-        best = None
-        for base, changed in bases:
-            tiles = np.empty(0, dtype=np.int32)
-            if views.sees(i, changed):
-                pv = views[i]
-                tiles = pv.tiles_touched(changed)
-                if needed is not None:
-                    tiles = np.intersect1d(tiles, _tiles_of(needed[i], pv.grid, pv.tile_size))
-            if best is None or tiles.size < best[1].size:
-                best = (base, tiles)
-        base, tiles = best
-        if tiles.size:
-            out.append(views[i].rerender(base, keep=~(own[i] | proposed), tiles=tiles))
-        else:   # nothing changes in this view (or nowhere needed)
-            out.append(base)
-    return out
-
-
-def _reference_maps(statics: list, excl: list) -> tuple[list, list]:
-    """:func:`static_reference`'s depths and colours from the renders of
-    :func:`static_renders`."""
     reference, reference_rgb = [], []
-    for static, base in zip(statics, excl):
+    for i in range(state.num_views):
+        others = proposed & ~own[i]
+        tiles = None
+        if views.sees(i, others):
+            pv = views[i]
+            tiles = pv.tiles_touched(others)
+            if needed is not None:
+                tiles = np.intersect1d(tiles, _tiles_of(needed[i], pv.grid, pv.tile_size))
+        if tiles is not None and tiles.size:
+            static = pv.rerender(excl[i], keep=~(own[i] | proposed), tiles=tiles)
+        else:   # nothing proposed in this view (or nowhere needed): R_i^-i itself
+            static = excl[i]
         # Where the proposals of the other views leave a hole, fall back to R_i^-i.
         solid = static.alpha > _STATIC_MIN_ALPHA
-        reference.append(np.where(solid, static.depth, base.depth))
+        reference.append(np.where(solid, static.depth, excl[i].depth))
         # Colours only where the other views cover the pixel fully: a partly covered pixel
         # (the edge of what they see) mixes in the background and proves nothing.
         covered = static.alpha >= _COLOR_MIN_ALPHA
