@@ -60,10 +60,9 @@ import numpy as np
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
 from clearsplat.filter.association import ViewIndex, region_gaussians
-from clearsplat.filter.neighbours import covisibility, dense_options, view_plan
+from clearsplat.filter.neighbours import dense_options, view_plan
 from clearsplat.filter.refine import member_pixels, widened_margin
-from clearsplat.filter.reveal import (parallax_angles, reveal_neighbours, reveal_reference,
-                                      typical_depths)
+from clearsplat.filter.reveal import reveal_plan, reveal_reference
 from clearsplat.filter.robust import view_depth_scales
 from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
@@ -80,21 +79,14 @@ def _reveal_depths(scene, config):
                                              config.verify_views)
     plan = view_plan(scene, neighbours=neighbours, verify_views=verify_views,
                      num_verify_views=config.num_verify_views, leave_out=config.leave_out)
-    c = covisibility(scene)
-    shared = c + c.T
     views = np.arange(scene.num_views)
-    near = None
-    if config.reveal_max_angle is not None:
-        near = (parallax_angles(scene.cameras, typical_depths(scene))
-                <= config.reveal_max_angle)
+    allowed = np.abs(views[:, None] - views[None]) > config.leave_out
+    if plan is not None and plan.hoods is not None:
+        allowed &= np.array(plan.hoods)
+    neighbours_of = reveal_plan(scene, count=config.reveal_views,
+                                max_angle=config.reveal_max_angle, allowed=allowed)
     out = []
-    for v, cam in enumerate(scene.cameras):
-        allowed = np.abs(views - v) > config.leave_out
-        if plan is not None and plan.hoods is not None:
-            allowed &= plan.hoods[v]
-        if near is not None:
-            allowed &= near[v]
-        others = reveal_neighbours(shared, v, count=config.reveal_views, allowed=allowed)
+    for v, (cam, others) in enumerate(zip(scene.cameras, neighbours_of)):
         excl = render(scene, cam, keep=np.abs(scene.view_id - v) > config.leave_out)
         ref, valid = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],
                                       excl, quantile=config.reveal_quantile,

@@ -11,7 +11,8 @@ from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.neighbours import covisibility
 from clearsplat.filter.refine import _tiles_of, static_reference
 from clearsplat.filter.reveal import (MIN_ALPHA, parallax_angles, quantile_layers,
-                                      reveal_neighbours, reveal_reference)
+                                      reveal_neighbours, reveal_plan, reveal_reference,
+                                      typical_depths)
 from clearsplat.metrics import removal_stats
 from clearsplat.render import RenderResult, prepare, render
 from clearsplat.synth import distractor_truth, make_world, reconstruct
@@ -294,3 +295,22 @@ def test_the_static_reference_composites_only_the_tiles_it_is_read_in(video):
         np.testing.assert_array_equal(part_d[i][~in_needed], excl[i].depth[~in_needed])
         changed += int((full_d[i][~in_needed] != part_d[i][~in_needed]).sum())
     assert changed > 0      # the skipped tiles did differ: the test can tell them apart
+
+
+def test_reveal_plan_takes_the_most_shared_allowed_views_within_the_angle(video):
+    scene, _ = video
+    v = scene.num_views
+    c = covisibility(scene)
+    shared = c + c.T
+    angles = parallax_angles(scene.cameras, typical_depths(scene))
+    allowed = ~np.eye(v, dtype=bool)
+    allowed[:, 2] = False                          # view 2 may reveal nothing for anyone
+    for max_angle in (None, float(np.median(angles[angles > 0]))):
+        plan = reveal_plan(scene, count=3, max_angle=max_angle, allowed=allowed)
+        for i, others in enumerate(plan):
+            ok = [j for j in range(v) if allowed[i, j]
+                  and (max_angle is None or angles[i, j] <= max_angle)]
+            ranked = sorted(ok, key=lambda j: (-shared[i, j], j))
+            assert others == ranked[:3]
+            assert 2 not in others and i not in others
+    assert any(len(o) < 3 for o in plan)           # the angle did leave views out

@@ -15,8 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .neighbours import covisibility
-from .reveal import parallax_angles, reveal_neighbours, reveal_reference, typical_depths
+from .reveal import reveal_plan, reveal_reference
 
 __all__ = ["ExclusionRenders", "exclusion_renders"]
 
@@ -67,13 +66,15 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
     config = state.config
     seen = np.zeros((scene.num_views, scene.num_views), dtype=np.int64)
     full, excl = [], []
-    reveal = valid = shared = near = None
+    reveal = valid = plan = None
     if config.reveal_reference == "quantile":
-        c = covisibility(scene)
-        shared, reveal, valid = c + c.T, [], []
-        if config.reveal_max_angle is not None:
-            angles = parallax_angles(scene.cameras, typical_depths(scene, state.index.members))
-            near = angles <= config.reveal_max_angle
+        reveal, valid = [], []
+        # A neighbour R_i^-i leaves in, among those view i's renders hold (the view plan).
+        allowed = ~state.left_out
+        if state.plan is not None and state.plan.hoods is not None:
+            allowed = allowed & np.array(state.plan.hoods)
+        plan = reveal_plan(scene, count=config.reveal_views, max_angle=config.reveal_max_angle,
+                           allowed=allowed, members=state.index.members)
     any_visible = False
     for i in range(scene.num_views):
         pv = views[i]
@@ -90,7 +91,7 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         excl.append(r_excl)
         state.lap("exclusion_renders")
         if reveal is not None:
-            ref, where = _reveal(state, shared, near, i, r_excl)
+            ref, where = _reveal(state, plan[i], i, r_excl)
             reveal.append(ref)
             valid.append(where)
             state.lap("reveal")
@@ -98,18 +99,10 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
     return ExclusionRenders(full, excl, seen, bool(any_visible), reveal, valid)
 
 
-def _reveal(state, shared: np.ndarray, near: np.ndarray | None, i: int, r_excl):
-    """View ``i``'s reveal reference and where it is not R_i^-i
-    (:func:`~clearsplat.filter.reveal.reveal_reference`), from the neighbours its renders hold
-    (the view plan's neighbourhood), R_i^-i leaves in and ``near[i]`` ((V, V) bool; None:
-    every view) allows."""
-    allowed = ~state.left_out[i]
-    if state.plan is not None and state.plan.hoods is not None:
-        allowed = allowed & state.plan.hoods[i]
+def _reveal(state, others: list, i: int, r_excl):
+    """View ``i``'s reveal reference from the neighbours ``others`` and where it is not
+    R_i^-i (:func:`~clearsplat.filter.reveal.reveal_reference`)."""
     config = state.config
-    if near is not None:
-        allowed = allowed & near[i]
-    others = reveal_neighbours(shared, i, count=config.reveal_views, allowed=allowed)
     # Each neighbour's Gaussians from its members (not a comparison over every Gaussian),
     # as one array of layer ids rather than a mask per neighbour.
     layers = np.full(state.n, -1, dtype=np.int8)

@@ -32,9 +32,10 @@ import numpy as np
 
 from ..render import RenderResult
 from .association import view_members
+from .neighbours import covisibility
 
 __all__ = ["MIN_ALPHA", "parallax_angles", "quantile_layers", "reveal_neighbours",
-           "reveal_reference", "typical_depths"]
+           "reveal_plan", "reveal_reference", "typical_depths"]
 
 #: A neighbour covers a pixel where its own render's accumulated opacity exceeds this.
 MIN_ALPHA = 0.5
@@ -48,6 +49,22 @@ def reveal_neighbours(shared: np.ndarray, view: int, *, count: int,
                   if j != view and (allowed is None or allowed[j])]
     candidates.sort(key=lambda j: (-shared[view, j], j))
     return candidates[:count]
+
+
+def reveal_plan(scene, *, count: int, max_angle: float | None, allowed: np.ndarray,
+                members: list | None = None) -> list[list[int]]:
+    """Per view i, the neighbours its reveal reference renders: the ``count`` views sharing
+    the most of its field of view (:func:`~clearsplat.filter.neighbours.covisibility`, both
+    ways), among those ``allowed[i]`` ((V, V) bool) allows and, unless ``max_angle`` is None,
+    within ``max_angle`` degrees of parallax (:func:`parallax_angles` at
+    :func:`typical_depths`; ``members`` as that takes them)."""
+    c = covisibility(scene)
+    shared = c + c.T
+    if max_angle is not None:
+        allowed = allowed & (parallax_angles(scene.cameras, typical_depths(scene, members))
+                             <= max_angle)
+    return [reveal_neighbours(shared, i, count=count, allowed=allowed[i])
+            for i in range(scene.num_views)]
 
 
 def parallax_angles(cameras: list, depths: list) -> np.ndarray:
@@ -131,11 +148,10 @@ def reveal_reference(view, layers, fallback: RenderResult, *, quantile: float,
     depth = np.stack([r.depth for r in renders])
     alpha = np.stack([r.alpha for r in renders])
     layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
-    rows, cols = np.indices(layer.shape)
-    rgb = np.stack([r.rgb for r in renders])[layer, rows, cols]
-    out = RenderResult(np.where(valid[..., None], rgb, fallback.rgb).astype(np.float32),
-                       np.where(valid, alpha[layer, rows, cols], fallback.alpha)
-                       .astype(np.float32),
-                       np.where(valid, depth[layer, rows, cols], fallback.depth)
-                       .astype(np.float32))
+    # R_i^-i, overwritten where a layer applies with that layer's own values.
+    out = RenderResult(*(np.array(a, dtype=np.float32) for a in fallback))
+    for k, r in enumerate(renders):
+        take = valid & (layer == k)
+        for a, b in zip(out, r):
+            a[take] = b[take]
     return out, valid
