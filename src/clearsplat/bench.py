@@ -71,6 +71,7 @@ ABLATIONS = {
     "+edge-tol": "default+edge_tolerance=1",
     "+expand-by-depth": "default+expand_color=false",
     "+reveal-any-angle": "default+reveal_max_angle=null",
+    "+static-base": "default+verify_base=static",
     "video": "video",
 }
 

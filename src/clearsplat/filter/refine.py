@@ -401,8 +401,8 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         proposed[g] = True
     radii = config.refine_tolerance
     if radii == "auto":   # each view's measured misregistration with the others
-        radii = [misregistration(images[i], excl[i].rgb, excl[i].alpha)
-                 for i in range(state.num_views)]
+        radii = thread_map(lambda i: misregistration(images[i], excl[i].rgb, excl[i].alpha),
+                           range(state.num_views), workers=config.num_threads)
     revealing = distances = in_front = None
     members = member_depths(state.scene, state.index)     # the same in every pass
     explain = config.color_explained is not None and config.verify

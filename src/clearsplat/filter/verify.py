@@ -353,6 +353,13 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
         views_of = {i: top_views(seen, i, config.num_verify_views)
                     for i in range(state.num_views)}
     all_keep = np.ones(state.n, dtype=bool)
+    proposed = None
+    if config.verify_base == "static":
+        # Every candidate's Gaussians: those of the other views are left out of each
+        # verifying view's base, so that their distractors do not hide the tested one's.
+        proposed = np.zeros(state.n, dtype=bool)
+        for c in candidates:
+            proposed[c.gaussians] = True
     totals = {c.index: Partial() for c in candidates}
     per_view = {c.index: [] for c in candidates}     # each verification view's terms
     for c in candidates:
@@ -362,7 +369,11 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
         # Candidates that view j does not see score 0 there: left out (and the view with them).
         todo = [c for c in candidates if j in c.verify_views and c.gaussians.size
                 and views.sees(j, c.gaussians)]
-        if todo:
+        if todo and proposed is not None:
+            for c, p in _static_base_terms(state, j, todo, proposed, q, verifier, renders):
+                totals[c.index].add(p)
+                per_view[c.index].append(p)
+        elif todo:
             if config.verify_base == "full":
                 base_keep, base = all_keep, renders.full[j]
             else:
@@ -385,6 +396,34 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
         else:
             c.reason = "rejected by individual test"
     return [c for c in candidates if c.reason == "passed individual test"]
+
+
+def _static_base_terms(state, j: int, todo: list, proposed: np.ndarray, q: dict, verifier,
+                       renders) -> list:
+    """``(candidate, terms)`` of each candidate in ``todo`` on view j
+    (``verify_base="static"``): its removal from R_j^-j without the candidates of every other
+    view (``proposed``, every candidate's Gaussians). The candidates of one view share a base
+    and are scored in one batch, as with the other bases."""
+    pv, own = state.views[j], state.own[j]
+    out = []
+    for i in sorted({c.view for c in todo}):
+        others = proposed & ~own & (state.scene.view_id != i)
+        base_keep = ~(own | others)
+        if not verifier.incremental:
+            base = pv.render(keep=base_keep)
+        elif state.views.sees(j, others):
+            # The scores read the base only in the tiles the candidates touch.
+            mine = np.concatenate([c.gaussians for c in todo if c.view == i])
+            tiles = np.intersect1d(pv.tiles_touched(others), pv.tiles_touched(mine))
+            base = pv.rerender(renders.excl[j], keep=base_keep, tiles=tiles)
+        else:
+            base = renders.excl[j]
+        for rng in (1, 2):
+            batch = [c for c in todo if c.view == i and c.range == rng]
+            parts = verifier.score_view(j, base_keep, base, [c.gaussians for c in batch],
+                                        q[rng][j])
+            out += zip(batch, parts)
+    return out
 
 
 def second_range_tests(state, passed: list, q: list, verifier, renders) -> None:
