@@ -43,8 +43,8 @@ def _candidates(scene, truth, rng):
 
 @pytest.mark.parametrize("seed,incremental", [(0, True), (1, True), (2, False)])
 def test_static_base_terms_match_full_renders(street, seed, incremental):
-    # Each candidate's terms on view j: removing it from R_j^-j without every other
-    # candidate, scored over the whole image from two full renders.
+    # Each candidate's terms on view j: removing it from R_j^-j without the other views'
+    # candidates (its own view's stay), scored over the whole image from two full renders.
     scene, truth = street
     rng = np.random.default_rng(seed)
     views = _Views(prepare(scene, cam) for cam in scene.cameras)
