@@ -50,7 +50,9 @@ def test_static_base_terms_match_full_renders(street, seed, incremental):
     views = _Views(prepare(scene, cam) for cam in scene.cameras)
     own = [scene.view_id == i for i in range(scene.num_views)]
     excl = [v.render(keep=~o) for v, o in zip(views, own)]
-    state = SimpleNamespace(views=views, own=own, scene=scene)    # what it reads
+    index = SimpleNamespace(members=[np.flatnonzero(scene.view_id == i)
+                                     for i in range(scene.num_views)])
+    state = SimpleNamespace(views=views, own=own, index=index)    # what it reads
     renders = SimpleNamespace(excl=excl)
     candidates = _candidates(scene, truth, rng)
     proposed = np.zeros(len(scene), bool)

@@ -405,19 +405,21 @@ def _static_base_terms(state, j: int, todo: list, proposed: np.ndarray, q: dict,
     view (``proposed``, every candidate's Gaussians). The candidates of one view share a base
     and are scored in one batch, as with the other bases."""
     pv, own = state.views[j], state.own[j]
+    theirs = proposed & ~own        # every candidate R_j^-j holds
     out = []
     for i in sorted({c.view for c in todo}):
-        others = proposed & ~own & (state.scene.view_id != i)
+        others = theirs.copy()
+        others[state.index.members[i]] = False
         base_keep = ~(own | others)
+        base = renders.excl[j]
         if not verifier.incremental:
             base = pv.render(keep=base_keep)
-        elif state.views.sees(j, others):
+        else:
             # The scores read the base only in the tiles the candidates touch.
             mine = np.concatenate([c.gaussians for c in todo if c.view == i])
             tiles = np.intersect1d(pv.tiles_touched(others), pv.tiles_touched(mine))
-            base = pv.rerender(renders.excl[j], keep=base_keep, tiles=tiles)
-        else:
-            base = renders.excl[j]
+            if tiles.size:
+                base = pv.rerender(base, keep=base_keep, tiles=tiles)
         for rng in (1, 2):
             batch = [c for c in todo if c.view == i and c.range == rng]
             parts = verifier.score_view(j, base_keep, base, [c.gaussians for c in batch],
