@@ -547,64 +547,64 @@ off by default: on the stand-in dense captures the proposals cover about half of
 """,
     "gpu": """## On a GPU
 
-Measured on 2026-11-26 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
-driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.4.0 built
-there as a wheel; object scenes at 256x448 (street at 32 views), the default config (two rounds)
-and the `fast` preset. That machine is not at hand, so this page's command does not regenerate
-these figures.
+Measured on 2026-11-27 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
+driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.4.7 built
+there as a wheel; object scenes at 256x448 (street at 32 views), that version's default config
+(`verify_base="exclude-own"`) and `fast` preset. That machine is not at hand, so this page's
+command does not regenerate these figures.
 
 | views | torch backend on the H200, total s | its verification s | GPU peak GB | native CPU filter, the same 16 cores: total s / verification s | same decisions |
 |---|---|---|---|---|---|
-| 4 | 1.97 | 0.63 | 0.97 | 0.85 / 0.29 | yes |
-| 8 | 9.39 | 3.00 | 1.76 | 3.86 / 1.44 | no: 197 Gaussians differ (17,820 removed against 17,627) |
-| 16 | 28.71 | 7.17 | 4.37 | 9.01 / 3.23 | no |
-| 32 (street) | 40.90 | 13.59 | 5.64 | 16.03 / 6.42 | no |
-| 8, `fast` | 4.35 | 1.09 | 1.52 | 1.54 / 0.75 | no |
-| 16, `fast` | 8.00 | 2.49 | 2.36 | 3.40 / 1.40 | yes |
+| 4 | 1.45 | 0.49 | 0.97 | 1.02 / 0.35 | yes |
+| 8 | 8.97 | 2.27 | 1.76 | 4.69 / 1.61 | no: 34 Gaussians differ (17,615 removed against 17,581) |
+| 16 | 28.36 | 7.09 | 4.37 | 12.41 / 3.71 | no |
+| 32 (street) | 49.13 | 15.91 | 5.65 | 21.72 / 7.92 | yes |
+| 8, `fast` | 3.97 | 1.31 | 1.48 | 2.37 / 0.90 | yes |
+| 16, `fast` | 8.70 | 1.88 | 2.37 | 4.24 / 1.24 | yes |
 
 Commands: `python benchmarks/filter_speed.py --device cuda --set backend=torch --views 4,8,16
---repeats 2 --full-repeats 1` (medians of 2 GPU runs; its second set of runs is the native CPU
-filter, whose verification seconds give the fifth column's second figure), the same with
-`--views 32 --family street --repeats 1` and with `--preset fast --views 8,16 --repeats 1`;
-`python benchmarks/filter_speed.py --views 8,16 --repeats 2 --full-repeats 0` (the native
-filter's totals; with `--preset fast`, and with `--views 32 --family street --repeats 1`) and
-`python benchmarks/gpu_decisions.py --views 4,8 --set backend=torch` (the 4-view CPU total, and
-two GPU runs that agree with each other). `bash benchmarks/gpu_check.sh OUTDIR` runs the GPU
-steps, the CUDA tests and the profile below in one go on a CUDA machine (it builds a wheel of
-the checkout first and caps each step in time; 344 s there). For scale: the paper reports
-3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter
-on those 16 cores takes about what it takes on the 2-core VM ("Speed" above): its refinement
-and the verification's serial NumPy work do not spread over cores. The first GPU run of a
-process also pays for CUDA's start: 6.42 s at 4 views against 1.36 s for the next.
+--repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one on a small scene; then
+the native filter, for the last column), the same with `--views 32 --family street --repeats 1`
+and with `--preset fast --views 8,16 --repeats 1`; the native seconds: the same commands without
+`--device cuda --set backend=torch`, with `--full-repeats 0`. `bash benchmarks/gpu_check.sh
+OUTDIR` runs the GPU steps, the CUDA tests and the profile in one go (406 s there). For scale:
+the paper reports 3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090.
+The native filter on 16 cores is only about 1.5 times as fast as on the 2-core VM ("Speed"
+above): its refinement and the verification's serial NumPy work do not spread over cores.
+Counts removed, and a first GPU run with CUDA's start (5.49 s at 4 views, 1.43 s the next):
+`python benchmarks/gpu_decisions.py --views 4,8 --set backend=torch`.
 
 **Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 4` (same
-machine): 1.97 s under the profiler, of which the GPU is busy 0.34 s (17 %); the filter issues
-105,645 torch ops, 44,065 kernel launches (0.32 s of host time in the launch calls alone), 2,801
-stream synchronisations and 3,217 copies. Of the GPU's 0.34 s, the scans of compositing
-(`cumsum`) take 38 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of
+machine): 2.26 s under the profiler, of which the GPU is busy 0.39 s (17 %); the filter issues
+119,903 torch ops, 49,865 kernel launches (0.37 s of host time in the launch calls alone), 3,157
+stream synchronisations and 3,631 copies. Of the GPU's 0.39 s, the scans of compositing
+(`cumsum`) take 39 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of
 a tile and scans them all, where a rasterizer kernel stops each pixel at its transmittance
 limit. The unprofiled runs' steps (`filter_speed.py` above) grow with the renders' count the
-same way: at 16 views the exclusion renders take 12.1 s of the 28.7. So the backend is bound
-by launches and host round trips, and on the device by fragment expansion; 0.3 s at 8 views
-needs fused compositing kernels and stages that stay on the device, not a faster card.
+same way: at 16 views the exclusion renders take 10.7 s and the reveal reference's renders
+6.4 s of the 28.4. So the backend is bound by launches and host round trips, and on the device
+by fragment expansion; 0.3 s at 8 views needs fused compositing kernels and stages that stay
+on the device, not a faster card.
 
 **Decisions.** The backend's renders agree with the native rasterizer's to float32 rounding on
 the GPU exactly as on CPU tensors. At 8 views and 256x448 that rounding flips a few decisions,
 on CPU tensors too: the support condition compares patch mean depths before and after the
 exclusion, and about a third of each view's patches differ by less than 1e-5 of their depth,
 where rounding decides (`python benchmarks/support_rounding.py`). With `support_margin=1e-4`,
-which asks for a surface farther by more than rounding (`docs/method.md`), the backend on CPU
-tensors makes the native decisions on that scene exactly (`python benchmarks/gpu_decisions.py
---views 8 --device cpu --set backend=torch --set support_margin=0.0001`). The CUDA tests
-(`python -m pytest tests/test_torch_backend.py -k cuda`: renders against the native rasterizer
-and the reference, the filter's decisions at 4 and 8 views on the tests' small scenes, the keep
-mask on the device, the CLI) passed there: 10 passed.
+which asks for a surface farther by more than rounding (`docs/method.md`), the backend makes
+the native decisions on that scene exactly, on the H200 (17,666 removed by both: `python
+benchmarks/gpu_decisions.py --views 8 --set backend=torch --set support_margin=0.0001`) as on
+CPU tensors (`--device cpu`). So did a dense street, with neighbours, the reveal reference and
+the static verification base (the same script with `--views 24 --family street --resolution
+128x224 --set verify_base=static`: 24,859 removed, 18.3 s against 4.9 s natively). The CUDA
+tests (`python -m pytest tests/test_torch_backend.py -k cuda`: renders against the native
+rasterizer and the reference, the filter's decisions at 4 and 8 views on the tests' small
+scenes, the keep mask on the device, the CLI) passed there: 10 passed.
 
 **gsplat** (`--set device=cuda`, the default backend on CUDA) was not measured: that machine had
-no gsplat and no network, and gsplat's PyPI release compiles its CUDA code on first use. On
-every test run its path is checked through the fake gsplat of `tests/test_gsplat.py`; `python
-benchmarks/filter_speed.py --device cuda --views 4,8,16` and `python benchmarks/gpu_decisions.py
---views 8,16` measure it where gsplat is installed.
+no gsplat and no network, and gsplat's PyPI release compiles its CUDA code on first use. The
+tests check its path through the fake gsplat of `tests/test_gsplat.py`; where gsplat is
+installed, `filter_speed.py --device cuda` and `gpu_decisions.py` without `--set` measure it.
 """,
     "datasets": """## Real datasets: RobustNeRF and NeRF On-the-go
 
