@@ -37,6 +37,7 @@ ABLATIONS = {
     "paper+excl-own": "paper-local+verify_base=exclude-own",
     # Each option in which the default differs from the paper, set to the paper's value alone.
     "full-base": "default+verify_base=full",
+    "exclude-own-base": "default+verify_base=exclude-own",
     "no-refine": "default+refine=none+verify_mask=proposals",
     "plain-depth": "default+refine=depth",
     "no-unrel-mask": "default+verify_mask=proposals",
@@ -71,7 +72,6 @@ ABLATIONS = {
     "+edge-tol": "default+edge_tolerance=1",
     "+expand-by-depth": "default+expand_color=false",
     "+reveal-any-angle": "default+reveal_max_angle=null",
-    "+static-base": "default+verify_base=static",
     "video": "video",
 }
 

@@ -163,10 +163,10 @@ class FilterConfig:
         What the individual test renders each verification view from. ``"full"`` is the paper:
         all Gaussians, so the verifying view's own Gaussians reproduce its image. ``"exclude-own"``
         removes the verifying view's own Gaussians first, as the paper's additional test does.
-        ``"static"``: also the candidates of every other view than the tested candidate's,
-        so that another view's distractor standing in front of it in the verifying view does
-        not hide what its removal changes, as the static reference of ``refine`` leaves every
-        proposal out (docs/method.md, "`verify_base="static"`").
+        ``"static"`` (the default) also removes the candidates of every other view than the
+        tested candidate's, so that another view's distractor standing in front of it in the
+        verifying view does not hide what its removal changes, as the static reference of
+        ``refine`` leaves every proposal out (docs/method.md, "`verify_base="static"`").
     joint_base : {"exclude-own", "full"}
         What the joint test of the second-range candidates renders each view from (the paper says
         "the same error reduction" as the additional test; we read that as excluding each view's own
@@ -457,7 +457,7 @@ class FilterConfig:
     second_range: bool = True
     single_threshold: bool = False
     verify: bool = True
-    verify_base: Literal["full", "exclude-own", "static"] = "exclude-own"
+    verify_base: Literal["full", "exclude-own", "static"] = "static"
     joint_base: Literal["exclude-own", "full"] = "exclude-own"
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
