@@ -17,8 +17,8 @@ re-rendered for every candidate and view); both runs must produce identical outp
 most GPU memory PyTorch allocated during the device runs, and one untimed run on a small scene
 comes first (CUDA's start and the kernels' loading stay out of the figures). *min-max* is the
 range of the incremental runs' totals, *first* the first of them (on the CPU, a fresh process:
-what a single ``clearsplat filter`` call sees, page faults of new memory included). *prepared* counts
-camera preparations per run (the number of views, plus views prepared again because they did
+what a single ``clearsplat filter`` call sees, page faults of new memory included). *prepared*
+counts camera preparations per run (the number of views, plus views prepared again because they did
 not fit in ``--view-memory``; with several rounds, each round's), *derived* those of them that
 a later round took from the round before without projecting again
 (:meth:`~clearsplat.render.PreparedView.restrict`), *skipped* the (view, pass) visits left out because the view sees

@@ -37,6 +37,8 @@ ABLATIONS = {
     "paper+excl-own": "paper-local+verify_base=exclude-own",
     # Each option in which the default differs from the paper, set to the paper's value alone.
     "full-base": "default+verify_base=full",
+    # ... and the individual test's base without the default's second step (the other views'
+    # candidates left in, as the additional test leaves them).
     "exclude-own-base": "default+verify_base=exclude-own",
     "no-refine": "default+refine=none+verify_mask=proposals",
     "plain-depth": "default+refine=depth",
