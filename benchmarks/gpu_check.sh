@@ -3,7 +3,7 @@
 # PyTorch: build a wheel of this checkout, then the CUDA tests, the decisions against the CPU
 # filter, the speed table, the decisions on a dense street with the static verification base,
 # the profile, the fast preset's rows and the 32-view street row, each step capped in time and
-# in this order, so that a short lease measures what matters most.
+# in this order, so that a short time on a GPU machine measures what matters most.
 #
 #     bash benchmarks/gpu_check.sh [OUTDIR] [SECONDS]
 #
