@@ -396,9 +396,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         return revealing, None, None     # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
         return None, None, None
-    proposed = np.zeros(state.n, dtype=bool)
-    for g in raw:
-        proposed[g] = True
+    proposed = state.mask(*raw)
     radii = config.refine_tolerance
     if radii == "auto":   # each view's measured misregistration with the others
         radii = thread_map(lambda i: misregistration(images[i], excl[i].rgb, excl[i].alpha),

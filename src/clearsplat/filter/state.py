@@ -97,10 +97,11 @@ class RoundState:
         """Add the seconds since the last lap to ``timings["<stage>.<step>"]`` (:class:`Clock`)."""
         self.clock.lap(step)
 
-    def mask(self, gaussians) -> np.ndarray:
-        """(N,) bool of int indices ``gaussians``."""
+    def mask(self, *gaussians) -> np.ndarray:
+        """(N,) bool of the int indices in ``gaussians`` (one or more index arrays)."""
         out = np.zeros(self.n, dtype=bool)
-        out[gaussians] = True
+        for g in gaussians:
+            out[g] = True
         return out
 
 

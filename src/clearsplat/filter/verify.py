@@ -353,13 +353,10 @@ def individual_tests(state, candidates: list, q: dict, verifier, renders) -> lis
         views_of = {i: top_views(seen, i, config.num_verify_views)
                     for i in range(state.num_views)}
     all_keep = np.ones(state.n, dtype=bool)
-    proposed = None
-    if config.verify_base == "static":
-        # Every candidate's Gaussians: those of the other views are left out of each
-        # verifying view's base, so that their distractors do not hide the tested one's.
-        proposed = np.zeros(state.n, dtype=bool)
-        for c in candidates:
-            proposed[c.gaussians] = True
+    # Every candidate's Gaussians: with the static base, those of the other views are left out
+    # of each verifying view's base, so that their distractors do not hide the tested one's.
+    proposed = (state.mask(*(c.gaussians for c in candidates))
+                if config.verify_base == "static" else None)
     totals = {c.index: Partial() for c in candidates}
     per_view = {c.index: [] for c in candidates}     # each verification view's terms
     for c in candidates:
@@ -406,22 +403,26 @@ def _static_base_terms(state, j: int, todo: list, proposed: np.ndarray, q: dict,
     and are scored in one batch, as with the other bases."""
     pv, own = state.views[j], state.own[j]
     theirs = proposed & ~own        # every candidate R_j^-j holds
+    by_view: dict = {}
+    for c in todo:
+        by_view.setdefault(c.view, []).append(c)
     out = []
-    for i in sorted({c.view for c in todo}):
+    for i in sorted(by_view):
+        mine = by_view[i]
         others = theirs.copy()
         others[state.index.members[i]] = False
         base_keep = ~(own | others)
-        base = renders.excl[j]
-        if not verifier.incremental:
-            base = pv.render(keep=base_keep)
-        else:
+        if verifier.incremental:
             # The scores read the base only in the tiles the candidates touch.
-            mine = np.concatenate([c.gaussians for c in todo if c.view == i])
-            tiles = np.intersect1d(pv.tiles_touched(others), pv.tiles_touched(mine))
+            base = renders.excl[j]
+            tiles = np.intersect1d(pv.tiles_touched(others),
+                                   pv.tiles_touched(np.concatenate([c.gaussians for c in mine])))
             if tiles.size:
                 base = pv.rerender(base, keep=base_keep, tiles=tiles)
+        else:
+            base = pv.render(keep=base_keep)
         for rng in (1, 2):
-            batch = [c for c in todo if c.view == i and c.range == rng]
+            batch = [c for c in mine if c.range == rng]
             parts = verifier.score_view(j, base_keep, base, [c.gaussians for c in batch],
                                         q[rng][j])
             out += zip(batch, parts)
