@@ -412,6 +412,34 @@ def test_render_layers_equal_one_render_each(world, count, threads):
     assert view.render_layers(np.full(n, -1)) == []
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_render_layers_in_tiles_equal_the_whole_renders_there(world, threads):
+    # Only the tiles asked for are composited: each layer equals its whole render in them and
+    # is zero elsewhere; the generic route (whole renders) is exact there too.
+    scene, rng = world
+    n = len(scene)
+    code = rng.integers(-1, 3, size=n)
+    view = prepare(scene, scene.cameras[1], num_threads=threads)
+    whole = view.render_layers(code, background=(0.2, 0.3, 0.4))
+    tiles = np.array([1, 4, 5, view.num_tiles - 1], dtype=np.int32)
+    flat, inside = view.tile_pixels(tiles)
+    listed = np.zeros(scene.cameras[1].height * scene.cameras[1].width, bool)
+    listed[flat[inside]] = True
+    for route in (view.render_layers, lambda *a, **k: _TiledView.render_layers(view, *a, **k)):
+        part = route(code, tiles=tiles, background=(0.2, 0.3, 0.4))
+        assert len(part) == len(whole) == 3
+        for got, ref in zip(part, whole):
+            for a, b in zip(got, ref):
+                rows_a, rows_b = a.reshape(listed.size, -1), b.reshape(listed.size, -1)
+                np.testing.assert_array_equal(rows_a[listed], rows_b[listed])
+                if route is view.render_layers:
+                    assert not rows_a[~listed].any()
+    assert all(not a.any() for r in view.render_layers(code, tiles=np.zeros(0, np.int32))
+               for a in r)
+    with pytest.raises(ClearsplatError, match="tile"):
+        view.render_layers(code, tiles=np.array([view.num_tiles], dtype=np.int32))
+
+
 def test_render_layers_reject_overlap_and_bad_masks(world):
     scene, _ = world
     n = len(scene)

@@ -125,6 +125,68 @@ def test_reveal_reference_takes_each_pixel_from_one_neighbours_own_render(video)
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_reveal_reference_made_again_in_tiles_equals_the_whole_one(video, seed):
+    # A later round: some Gaussians removed (the top rows of one neighbour's, scattered ones
+    # of every view among the same rows); the view restricted to the rest, R_i^-i composited
+    # again in the tiles the removal touched, and the reveal reference made again there from
+    # the earlier one equal the whole reference of the kept Gaussians, bit for bit.
+    from clearsplat.filter.rounds import kept_scene
+    scene, _ = video
+    rng = np.random.default_rng(seed)
+    i, others = 3, [2, 4, 1, 5, 6]
+    top = scene.pixel_id < scene.cameras[0].width * 12
+    removed = top & (rng.uniform(size=len(scene)) < 0.05)
+    removed[top & (scene.view_id == others[seed % len(others)])] = True
+    keep = ~removed
+    ids = np.full(len(scene), -1, dtype=np.int8)
+    for k, j in enumerate(others):
+        ids[scene.view_id == j] = k
+    view = prepare(scene, scene.cameras[i])
+    first, first_valid = reveal_reference(view, ids, render(scene, scene.cameras[i],
+                                                            keep=scene.view_id != i),
+                                          quantile=0.75, min_views=3)
+    tiles = view.tiles_touched(removed)
+    assert 0 < tiles.size < view.num_tiles
+    later = kept_scene(scene, np.flatnonzero(keep))
+    fallback = render(later, later.cameras[i], keep=later.view_id != i)
+    whole, valid = reveal_reference(prepare(later, later.cameras[i]), ids[keep], fallback,
+                                    quantile=0.75, min_views=3)
+    again, valid_again = reveal_reference(view.restrict(keep), ids[keep], fallback,
+                                          quantile=0.75, min_views=3, tiles=tiles,
+                                          start=(first, first_valid))
+    np.testing.assert_array_equal(valid_again, valid)
+    for a, b in zip(again, whole):
+        np.testing.assert_array_equal(a, b)
+    assert any((a != b).any() for a, b in zip(whole, first))     # the removal changed it
+    assert first.rgb is not again.rgb and (first_valid is not valid_again)
+
+
+def test_a_later_round_makes_the_reveal_reference_again_only_where_removals_touched(video,
+                                                                                 monkeypatch):
+    # The filter's second round takes each view's reveal reference from the first where the
+    # neighbours are the same, and decides exactly as when it makes every reference whole.
+    import clearsplat.filter.exclusion as exclusion
+    scene, _ = video
+    config = FilterConfig(rounds=2)
+    extractor = get_extractor("local")
+    made = []
+    reveal = exclusion._reveal
+
+    def counted(state, others, i, r_excl, start=None, tiles=None):
+        made.append(start is not None)
+        return reveal(state, others, i, r_excl, start, tiles)
+
+    monkeypatch.setattr(exclusion, "_reveal", counted)
+    again = filter_distractors(scene, config=config, extractor=extractor)
+    assert any(made) and not all(made)
+    monkeypatch.setattr(exclusion, "_held_reveal", lambda previous, i, others: None)
+    whole = filter_distractors(scene, config=config, extractor=extractor)
+    assert max(c.round for c in whole.candidates) == 2
+    np.testing.assert_array_equal(again.keep, whole.keep)
+    assert [c.scores for c in again.candidates] == [c.scores for c in whole.candidates]
+
+
 def test_the_quantile_reference_shows_the_surface_behind_a_passer_by_held_by_neighbours(video):
     # In a video the passer-by of view i stands in his neighbouring frames too: R_i^-i shows
     # him, the quantile reference the street behind, farther than his Gaussians.

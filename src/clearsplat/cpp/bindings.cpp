@@ -176,7 +176,7 @@ void composite_pair(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
 }
 
 void composite_layers(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
-                      In<int8_t> layer, int num_layers, int width, int height,
+                      In<int8_t> layer, int num_layers, In<int32_t> tiles, int width, int height,
                       In<float> background, Out<float> rgb, Out<float> alpha, Out<float> depth,
                       int num_threads) {
     const cs::ViewData v = view_of(splats, offsets, lists, width, height);
@@ -189,9 +189,12 @@ void composite_layers(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
             "output sizes");
     const int8_t* l = layer.data();
     for (int64_t i = 0; i < v.num; ++i) require(l[i] < num_layers, "layer out of range");
+    const int32_t* t = tiles.data();
+    for (size_t j = 0; j < tiles.size(); ++j)
+        require(t[j] >= 0 && t[j] < v.num_tiles(), "tile out of range");
     nb::gil_scoped_release release;
-    cs::composite_image_layers(v, l, num_layers, background.data(), rgb.data(), alpha.data(),
-                               depth.data(), threads(num_threads));
+    cs::composite_image_layers(v, l, num_layers, t, int64_t(tiles.size()), background.data(),
+                               rgb.data(), alpha.data(), depth.data(), threads(num_threads));
 }
 
 void composite_patches(In<float> splats, In<int64_t> offsets, In<int32_t> lists,
@@ -366,9 +369,10 @@ NB_MODULE(_core, m) {
           "alpha_b"_a, "depth_b"_a, "num_threads"_a,
           "Composite the tiles twice in one pass: the Gaussians kept by keep_a (a), by keep (b).");
     m.def("composite_layers", &composite_layers, "splats"_a, "offsets"_a, "lists"_a, "layer"_a,
-          "num_layers"_a, "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a, "depth"_a,
-          "num_threads"_a,
-          "Composite every layer (the Gaussians with layer == k) into outputs[k], in one pass.");
+          "num_layers"_a, "tiles"_a, "width"_a, "height"_a, "background"_a, "rgb"_a, "alpha"_a,
+          "depth"_a, "num_threads"_a,
+          "Composite every layer (the Gaussians with layer == k) into outputs[k] in `tiles`, in "
+          "one pass.");
     m.def("composite_patches", &composite_patches, "splats"_a, "offsets"_a, "lists"_a, "rects"_a,
           "keep"_a, "removal_offsets"_a, "removal_ids"_a, "task_offsets"_a, "task_tiles"_a,
           "width"_a, "height"_a, "background"_a, "base_rgb"_a, "base_alpha"_a, "base_depth"_a,

@@ -308,17 +308,18 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
 }
 
 void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
-                            const float bg[3], float* rgb, float* alpha, float* depth,
-                            int num_threads) {
-    const int64_t num_tiles = v.num_tiles();
+                            const int32_t* tiles, int64_t num_tiles, const float bg[3],
+                            float* rgb, float* alpha, float* depth, int num_threads) {
+    if (!tiles) num_tiles = v.num_tiles();
     const int64_t px = int64_t(v.width) * v.height;
 #pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {
         std::vector<TileState> states(size_t(std::max(num_layers, 1)));
 #pragma omp for schedule(dynamic, 1)
-        for (int64_t tile = 0; tile < num_tiles; ++tile) {
-            for (int l = 0; l < num_layers; ++l) states[l].reset(v, int(tile), nullptr);
-            composite_tile_layers(v, int(tile), layer, states.data(), num_layers);
+        for (int64_t j = 0; j < num_tiles; ++j) {
+            const int tile = tiles ? tiles[j] : int(j);
+            for (int l = 0; l < num_layers; ++l) states[l].reset(v, tile, nullptr);
+            composite_tile_layers(v, tile, layer, states.data(), num_layers);
             for (int l = 0; l < num_layers; ++l) {
                 const TileState& s = states[l];
                 for (int ly = 0; ly < s.h; ++ly)

@@ -118,10 +118,11 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
 
 // Every layer of a view in one pass over its tile lists: the Gaussians with layer[id] == k
 // (k < num_layers <= 127; negative: in none) into rgb[k] (K, H, W, 3), alpha[k] and depth[k]
-// (K, H, W) each; each equals its separate composite_image bit for bit.
+// (K, H, W) each, in `tiles` (all when null); each equals its separate composite_image bit for
+// bit.
 void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
-                            const float bg[3], float* rgb, float* alpha, float* depth,
-                            int num_threads);
+                            const int32_t* tiles, int64_t num_tiles, const float bg[3],
+                            float* rgb, float* alpha, float* depth, int num_threads);
 
 // Batched incremental compositing: task j re-composites tile task_tiles[j] for the removal
 // task_removal[j], skipping that removal's ids (CSR, sorted ascending per removal). With a base

@@ -6,7 +6,8 @@ but those predicted from view i. Both come from one compositing pass per view
 the tiles its removals touched; elsewhere they are unchanged, so the result is exact.
 
 With ``reveal_reference="quantile"`` each view also gets its reveal reference
-(:mod:`.reveal`), which the proposal and refinement read in place of R_i^-i.
+(:mod:`.reveal`), which the proposal and refinement read in place of R_i^-i; a later round
+makes it again only in the same tiles, where the round before rendered the same neighbours.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ class ExclusionRenders:
         None: R_i^-i is the reference.
     reveal_valid : list of (H, W) bool, or None
         Per view, where the reveal reference is not R_i^-i.
+    reveal_plan : list of list of int, or None
+        Per view, the neighbours its reveal reference renders.
     """
 
     full: list
@@ -48,6 +51,7 @@ class ExclusionRenders:
     any_visible: bool
     reveal: list | None = None
     reveal_valid: list | None = None
+    reveal_plan: list | None = None
 
     @property
     def reference(self) -> list:
@@ -91,17 +95,32 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         excl.append(r_excl)
         state.lap("exclusion_renders")
         if reveal is not None:
-            ref, where = _reveal(state, plan[i], i, r_excl)
+            start = _held_reveal(previous, i, plan[i])     # dropped from previous
+            if i not in touched:    # prepared afresh: its renders were made whole
+                start = None
+            ref, where = _reveal(state, plan[i], i, r_excl, start, touched.get(i))
             reveal.append(ref)
             valid.append(where)
             state.lap("reveal")
         state.report("render", i + 1, scene.num_views)
-    return ExclusionRenders(full, excl, seen, bool(any_visible), reveal, valid)
+    return ExclusionRenders(full, excl, seen, bool(any_visible), reveal, valid, plan)
 
 
-def _reveal(state, others: list, i: int, r_excl):
+def _held_reveal(previous, i: int, others: list) -> tuple | None:
+    """The previous round's reveal reference of view ``i`` and where it applies, if that
+    round rendered the same neighbours ``others`` (None otherwise); dropped from
+    ``previous`` either way."""
+    if previous is None or previous.reveal is None or previous.reveal[i] is None:
+        return None
+    held = previous.reveal[i]
+    previous.reveal[i] = None
+    return held[:2] if held[2] == others else None
+
+
+def _reveal(state, others: list, i: int, r_excl, start=None, tiles=None):
     """View ``i``'s reveal reference from the neighbours ``others`` and where it is not
-    R_i^-i (:func:`~clearsplat.filter.reveal.reveal_reference`)."""
+    R_i^-i (:func:`~clearsplat.filter.reveal.reveal_reference`); from ``start`` (the previous
+    round's, the same neighbours) again only in ``tiles``."""
     config = state.config
     # Each neighbour's Gaussians from its members (not a comparison over every Gaussian),
     # as one array of layer ids rather than a mask per neighbour.
@@ -110,7 +129,7 @@ def _reveal(state, others: list, i: int, r_excl):
         layers[state.index.members[j]] = k
     return reveal_reference(state.views[i], layers, r_excl,
                             quantile=config.reveal_quantile,
-                            min_views=config.reveal_min_views)
+                            min_views=config.reveal_min_views, tiles=tiles, start=start)
 
 
 def _update_pair(pv, own, tiles, previous, i: int):

@@ -110,7 +110,8 @@ def quantile_layers(depth: np.ndarray, alpha: np.ndarray, *, quantile: float,
     Parameters
     ----------
     depth, alpha : (K, H, W) float32
-        The expected depth and accumulated opacity of K renders of the same camera.
+        The expected depth and accumulated opacity of K renders of the same camera (or of
+        any set of their pixels: (K, ...)).
     quantile : float in [0, 1]
     min_views : int
         Fewest covering layers (``alpha > min_alpha``) for a pixel to take one.
@@ -134,14 +135,23 @@ def quantile_layers(depth: np.ndarray, alpha: np.ndarray, *, quantile: float,
 
 
 def reveal_reference(view, layers, fallback: RenderResult, *, quantile: float,
-                     min_views: int) -> tuple[RenderResult, np.ndarray]:
+                     min_views: int, tiles: np.ndarray | None = None,
+                     start: tuple | None = None) -> tuple[RenderResult, np.ndarray]:
     """View i's reveal reference: its prepared view ``view`` rendered with each of ``layers``
     (one neighbour's Gaussians each: a list of (N,) bool masks, or an (N,) int array of layer
     ids, -1 for none, as :meth:`~clearsplat.render.PreparedView.render_layers` takes them) on
     its own, the layer that :func:`quantile_layers` picks per pixel, and ``fallback``
     (R_i^-i) where it picks none.
 
+    ``start``: a reference made earlier, ``(reference, valid)``, with the same layers but for
+    Gaussians since removed in ``tiles`` (int tile ids) and a ``fallback`` that differs from
+    the one given only there: the reference is then made again in those tiles alone, and
+    equals the whole one bit for bit.
+
     Returns the reference and (H, W) bool, where it is not ``fallback``'s."""
+    if start is not None:
+        return _reveal_in_tiles(view, layers, fallback, start, tiles, quantile=quantile,
+                                min_views=min_views)
     renders = view.render_layers(layers)     # one pass over the tile lists, natively
     if not renders:
         return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
@@ -154,4 +164,34 @@ def reveal_reference(view, layers, fallback: RenderResult, *, quantile: float,
         take = valid & (layer == k)
         for a, b in zip(out, r):
             a[take] = b[take]
+    return out, valid
+
+
+def _reveal_in_tiles(view, layers, fallback: RenderResult, start: tuple, tiles: np.ndarray, *,
+                     quantile: float, min_views: int) -> tuple[RenderResult, np.ndarray]:
+    """:func:`reveal_reference` made again only in ``tiles``, on ``start`` elsewhere: the
+    layers are composited there alone, and each of their pixels takes what the whole
+    reference would give it (the quantile is decided per pixel)."""
+    reference, valid = start
+    out = RenderResult(*(np.array(a, dtype=np.float32) for a in reference))
+    valid = np.array(valid, dtype=bool)
+    flat, inside = view.tile_pixels(tiles)
+    pixels = flat[inside]
+    if pixels.size == 0:
+        return out, valid
+    renders = view.render_layers(layers, tiles=tiles)
+    rows = [a.reshape(valid.size, -1) for a in out]
+    for a, b in zip(rows, fallback):            # R_i^-i, as in the whole reference
+        a[pixels] = b.reshape(valid.size, -1)[pixels]
+    if not renders:
+        valid.reshape(-1)[pixels] = False
+        return out, valid
+    depth = np.stack([r.depth.reshape(-1)[pixels] for r in renders])
+    alpha = np.stack([r.alpha.reshape(-1)[pixels] for r in renders])
+    layer, applies = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
+    valid.reshape(-1)[pixels] = applies
+    for k, r in enumerate(renders):
+        take = pixels[applies & (layer == k)]
+        for a, b in zip(rows, r):
+            a[take] = b.reshape(valid.size, -1)[take]
     return out, valid

@@ -26,7 +26,9 @@ class Carry:
     """What a round hands to the next: its prepared views (those still held), its renders
     R_i and R_i^-i, and which of its Gaussians it kept ((N,) bool). The next round, on the
     kept Gaussians, takes its views from these (``PreparedView.restrict``) and composites again
-    only the tiles that the removed Gaussians touched.
+    only the tiles that the removed Gaussians touched. ``reveal``: per view, its reveal
+    reference, where it applies and the neighbours it rendered (``(RenderResult, (H, W) bool,
+    list)``; None without ``reveal_reference="quantile"``), made again in the same tiles.
 
     ``source``: the whole scene of the first round and the (N0,) bool mask of the Gaussians
     the next round runs on, where that round's scene is :func:`kept_scene` with ``light``: the
@@ -38,10 +40,13 @@ class Carry:
     excl: list
     keep: np.ndarray
     source: tuple | None = None
+    reveal: list | None = None
 
     def nbytes(self) -> int:
         """Bytes held: the views still kept and the renders not yet dropped."""
-        renders = sum(a.nbytes for r in self.full + self.excl if r is not None for a in r)
+        held = [r for r in self.full + self.excl if r is not None]
+        held += [h[0] for h in self.reveal or () if h is not None]
+        renders = sum(a.nbytes for r in held for a in r)
         return self.views.held_bytes + renders
 
     def release(self) -> None:
@@ -49,6 +54,8 @@ class Carry:
         self.views.release(bits=True)
         self.full.clear()
         self.excl.clear()
+        if self.reveal is not None:
+            self.reveal.clear()
 
 
 class KeptGaussians(Gaussians):

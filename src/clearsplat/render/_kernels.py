@@ -126,16 +126,21 @@ def composite_pair(splats, offsets, lists, keep_a, keep, tiles, width: int, heig
 
 
 def composite_layers(splats, offsets, lists, layer, num_layers: int, width: int, height: int,
-                     background, num_threads: int):
+                     background, num_threads: int, tiles=None):
     """Composite every layer in one pass over the tile lists: the visible Gaussians with
     ``layer == k`` ((V,) int8, negative: in none) into ``(rgb (K, H, W, 3), alpha (K, H, W),
-    depth (K, H, W))[k]``, each equal to its own :func:`composite` bit for bit."""
-    rgb = np.empty((num_layers, height, width, 3), dtype=np.float32)
-    alpha = np.empty((num_layers, height, width), dtype=np.float32)
-    depth = np.empty((num_layers, height, width), dtype=np.float32)
+    depth (K, H, W))[k]``, each equal to its own :func:`composite` bit for bit. ``tiles``: only
+    these tile ids (int32), the other pixels zero (None: every tile)."""
+    shape = (num_layers, height, width)
+    make = np.empty if tiles is None else np.zeros
+    rgb = make(shape + (3,), dtype=np.float32)
+    alpha, depth = make(shape, dtype=np.float32), make(shape, dtype=np.float32)
+    if tiles is None:
+        tiles = np.arange(-(-height // TILE) * -(-width // TILE), dtype=np.int32)
     _core.composite_layers(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
-                           _c(layer, np.int8), int(num_layers), int(width), int(height),
-                           _c(background, np.float32), rgb, alpha, depth, int(num_threads))
+                           _c(layer, np.int8), int(num_layers), _c(tiles, np.int32), int(width),
+                           int(height), _c(background, np.float32), rgb, alpha, depth,
+                           int(num_threads))
     return rgb, alpha, depth
 
 

@@ -245,7 +245,7 @@ class _TiledView:
         flat = np.where(inside, (rows * width + cols).ravel(), 0)
         return flat, inside
 
-    def render_layers(self, layers, *, background=(0.0, 0.0, 0.0)) -> list:
+    def render_layers(self, layers, *, tiles=None, background=(0.0, 0.0, 0.0)) -> list:
         """Each of ``layers`` rendered on its own: ``[self.render(keep=m) for m in layers]``,
         bit for bit, in fewer passes over the tile lists (two layers per
         :meth:`render_pair` here; the native view composites every layer in one pass).
@@ -255,6 +255,9 @@ class _TiledView:
         layers : sequence of (N,) bool, or (N,) int
             Disjoint subsets of the Gaussians (at most 127): one mask per layer, or each
             Gaussian's layer id (-1: in none; layers 0 to the largest id).
+        tiles : int array of tile ids, optional
+            Only these tiles are asked for: the renders need be exact there alone (here they
+            are whole renders; the native view composites only these tiles).
         background : 3 floats
 
         Returns

@@ -546,9 +546,11 @@ class GsplatView(_TiledView):
         bg = _check_background(background)
         return self._render_keeps(keeps, bg, batch_size)
 
-    def render_layers(self, layers, *, background=(0.0, 0.0, 0.0)) -> list[RenderResult]:
+    def render_layers(self, layers, *, tiles=None,
+                      background=(0.0, 0.0, 0.0)) -> list[RenderResult]:
         """Each of ``layers`` (disjoint: (N,) bool masks, or (N,) int layer ids with -1 for
-        none; at most 127) rendered on its own: one :meth:`render_many`."""
+        none; at most 127) rendered on its own: one :meth:`render_many`, whole renders (so
+        exact in any ``tiles`` asked for)."""
         return self.render_many(_layer_masks(*_check_layers(layers, self.num_gaussians)),
                                 background=background)
 

@@ -196,7 +196,7 @@ class PreparedView(_TiledView):
                           self._num_threads)
         return out
 
-    def render_layers(self, layers, *, background=(0.0, 0.0, 0.0)) -> list:
+    def render_layers(self, layers, *, tiles=None, background=(0.0, 0.0, 0.0)) -> list:
         """Each of ``layers`` rendered on its own, in one pass over the tile lists: equal, bit
         for bit, to ``[self.render(keep=m) for m in layers]``, and each Gaussian's footprint
         is evaluated once, for its own layer.
@@ -206,6 +206,8 @@ class PreparedView(_TiledView):
         layers : sequence of (N,) bool, or (N,) int
             Disjoint subsets of the Gaussians (at most 127): one mask per layer, or each
             Gaussian's layer id (-1: in none; layers 0 to the largest id), which is cheaper.
+        tiles : int array of tile ids, optional
+            Composite only these tiles: the renders are exact there, zero elsewhere.
         background : 3 floats
 
         Returns
@@ -220,8 +222,10 @@ class PreparedView(_TiledView):
             raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
                                   "its floor, and a layer leaves some out", field="layers")
         h, w = self.camera.height, self.camera.width
+        tiles = None if tiles is None else self._check_tiles(tiles)
         rgb, alpha, depth = _kernels.composite_layers(self._splats, self._offsets, self._lists,
-                                                      code, count, w, h, bg, self._num_threads)
+                                                      code, count, w, h, bg, self._num_threads,
+                                                      tiles=tiles)
         return [RenderResult(rgb[k], alpha[k], depth[k]) for k in range(count)]
 
     def render_pair(self, *, keep, first=None, tiles=None, start: RenderResult | None = None,
