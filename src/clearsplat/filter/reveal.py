@@ -173,6 +173,7 @@ def _reveal_in_tiles(view, layers, fallback: RenderResult, start: tuple, tiles: 
     layers are composited there alone, and each of their pixels takes what the whole
     reference would give it (the quantile is decided per pixel)."""
     reference, valid = start
+    # Copies: the round before's proposals keep its reference for their pictures.
     out = RenderResult(*(np.array(a, dtype=np.float32) for a in reference))
     valid = np.array(valid, dtype=bool)
     flat, inside = view.tile_pixels(tiles)
