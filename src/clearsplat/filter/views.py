@@ -139,11 +139,13 @@ class PreparedViews:
         return self._kept.pop(i, None)
 
     def release(self, *, bits: bool = False) -> None:
-        """Drop every kept view; with ``bits`` also the visibility bits (N / 8 bytes per view),
-        once nothing asks :meth:`sees` any more."""
+        """Drop every kept view; with ``bits`` also the visibility bits (N / 8 bytes per view)
+        and what prepares a view (and the round state it holds), once nothing asks for a view
+        or :meth:`sees` any more."""
         self._kept.clear()
         if bits:
             self._seen = [None] * len(self.cameras)
+            self._make = None
 
     def sees(self, j: int, gaussians) -> bool:
         """Whether view ``j`` can be changed by removing ``gaussians`` (int indices or (N,)
