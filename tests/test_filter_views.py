@@ -92,6 +92,12 @@ def test_prepared_views_keep_the_first_within_budget(street):
     views.release(bits=True)
     with pytest.raises(RuntimeError, match="released"):
         views.sees_any(3, g[:5])
+    # ... and what prepares a view, with all it holds (a round's Gaussian index, its scene):
+    # nothing is prepared any more.
+    for i in (0, 3):
+        with pytest.raises(RuntimeError, match="released"):
+            views[i]
+    assert made == [0, 1, 2, 3, 1, 2, 3]
 
 
 @pytest.mark.parametrize("bad", [0, -1.0, float("inf"), True, "2"])

@@ -85,6 +85,8 @@ class PreparedViews:
         view = self._kept.get(i)
         if view is not None:
             return view
+        if self._make is None:
+            raise RuntimeError(f"view {i} is asked for after its view set was released")
         view = self._make(i)
         self.prepared += 1
         if self._seen[i] is None:
