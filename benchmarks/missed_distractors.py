@@ -34,7 +34,9 @@ in the first of these steps that lost it:
 - *accepted: hidden from its verifying views*: in an accepted candidate, but behind the own
   surface of each of its verifying views (``verify_hidden``).
 
-Prints the totals, then per input view the distractor Gaussians, those missed, the view's
+Prints the totals (and, with ``reveal_reference="quantile"``, the share of each view's pixels
+where the reveal reference applies, averaged over the views), then per input view the
+distractor Gaussians, those missed, the view's
 depth scale and widened margin and their steps, and with ``--view`` every candidate of that
 view with its round, scores, verification views and how many of its Gaussians are
 distractors.
@@ -221,13 +223,17 @@ def main(argv=None) -> int:
         truth = distractor_truth(scene, world)
     result = filter_distractors(scene, config=config)
     margins: dict = {}
+    reveal = _reveal_depths(scene, config)
     step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin,
                   config.depth_scale_align and config.refine == "static-depth", margins,
-                  _reveal_depths(scene, config))
+                  reveal)
     missed = truth & result.keep
     print(f"{args.realism} {args.family}, {args.views} views at {w}x{h}, seed {args.seed}, "
           f"{args.config}: recall {1 - missed.sum() / max(truth.sum(), 1):.3f} "
           f"({int(missed.sum()):,} of {int(truth.sum()):,} distractor Gaussians missed)")
+    if reveal is not None:
+        print(f"  the reveal reference applies at {np.mean([v.mean() for _, v in reveal]):.2f} "
+              f"of the pixels (mean over views, as the first round builds it)")
     for name, count in Counter(step[missed]).most_common():
         print(f"  {name:44s} {count:7,}")
     # scale, margin: the view's depth ratio to the static reference and its margin widened by

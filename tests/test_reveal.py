@@ -180,7 +180,7 @@ def test_a_later_round_makes_the_reveal_reference_again_only_where_removals_touc
     monkeypatch.setattr(exclusion, "_reveal", counted)
     again = filter_distractors(scene, config=config, extractor=extractor)
     assert any(made) and not all(made)
-    monkeypatch.setattr(exclusion, "_held_reveal", lambda previous, i, others: None)
+    monkeypatch.setattr(exclusion, "_held_reveal", lambda *args: None)
     whole = filter_distractors(scene, config=config, extractor=extractor)
     assert max(c.round for c in whole.candidates) == 2
     np.testing.assert_array_equal(again.keep, whole.keep)

@@ -95,9 +95,7 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         excl.append(r_excl)
         state.lap("exclusion_renders")
         if reveal is not None:
-            start = _held_reveal(previous, i, plan[i])     # dropped from previous
-            if i not in touched:    # prepared afresh: its renders were made whole
-                start = None
+            start = _held_reveal(previous, i, plan[i], i in touched)
             ref, where = _reveal(state, plan[i], i, r_excl, start, touched.get(i))
             reveal.append(ref)
             valid.append(where)
@@ -106,15 +104,16 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
     return ExclusionRenders(full, excl, seen, bool(any_visible), reveal, valid, plan)
 
 
-def _held_reveal(previous, i: int, others: list) -> tuple | None:
+def _held_reveal(previous, i: int, others: list, derived: bool) -> tuple | None:
     """The previous round's reveal reference of view ``i`` and where it applies, if that
-    round rendered the same neighbours ``others`` (None otherwise); dropped from
-    ``previous`` either way."""
+    round rendered the same neighbours ``others`` and the view was ``derived`` from its (not
+    prepared afresh, whose renders are made whole); None otherwise. Dropped from ``previous``
+    either way."""
     if previous is None or previous.reveal is None or previous.reveal[i] is None:
         return None
     held = previous.reveal[i]
     previous.reveal[i] = None
-    return held[:2] if held[2] == others else None
+    return held[:2] if derived and held[2] == others else None
 
 
 def _reveal(state, others: list, i: int, r_excl, start=None, tiles=None):

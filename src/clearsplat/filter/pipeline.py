@@ -233,10 +233,8 @@ def _finish(state: RoundState, keep, candidates, proposals, renders, touched: di
     stats = views.stats(derived=len(touched))
     carry = None
     if hold and state.backend.hands_on:
-        reveal = None
-        if renders.reveal is not None:
-            reveal = [(r, v, p) for r, v, p in zip(renders.reveal, renders.reveal_valid,
-                                                   renders.reveal_plan)]
+        reveal = (None if renders.reveal is None else
+                  list(zip(renders.reveal, renders.reveal_valid, renders.reveal_plan)))
         carry = Carry(views, renders.full, renders.excl, keep, reveal=reveal)
     else:
         views.release()

@@ -149,41 +149,28 @@ def reveal_reference(view, layers, fallback: RenderResult, *, quantile: float,
     equals the whole one bit for bit.
 
     Returns the reference and (H, W) bool, where it is not ``fallback``'s."""
-    if start is not None:
-        return _reveal_in_tiles(view, layers, fallback, start, tiles, quantile=quantile,
-                                min_views=min_views)
-    renders = view.render_layers(layers)     # one pass over the tile lists, natively
-    if not renders:
-        return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
-    depth = np.stack([r.depth for r in renders])
-    alpha = np.stack([r.alpha for r in renders])
-    layer, valid = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
-    # R_i^-i, overwritten where a layer applies with that layer's own values.
-    out = RenderResult(*(np.array(a, dtype=np.float32) for a in fallback))
-    for k, r in enumerate(renders):
-        take = valid & (layer == k)
-        for a, b in zip(out, r):
-            a[take] = b[take]
-    return out, valid
-
-
-def _reveal_in_tiles(view, layers, fallback: RenderResult, start: tuple, tiles: np.ndarray, *,
-                     quantile: float, min_views: int) -> tuple[RenderResult, np.ndarray]:
-    """:func:`reveal_reference` made again only in ``tiles``, on ``start`` elsewhere: the
-    layers are composited there alone, and each of their pixels takes what the whole
-    reference would give it (the quantile is decided per pixel)."""
-    reference, valid = start
-    # Copies: the round before's proposals keep its reference for their pictures.
-    out = RenderResult(*(np.array(a, dtype=np.float32) for a in reference))
-    valid = np.array(valid, dtype=bool)
-    flat, inside = view.tile_pixels(tiles)
-    pixels = flat[inside]
-    if pixels.size == 0:
-        return out, valid
-    renders = view.render_layers(layers, tiles=tiles)
-    rows = [a.reshape(valid.size, -1) for a in out]
-    for a, b in zip(rows, fallback):            # R_i^-i, as in the whole reference
-        a[pixels] = b.reshape(valid.size, -1)[pixels]
+    if start is None:
+        renders = view.render_layers(layers)     # one pass over the tile lists, natively
+        if not renders:
+            return fallback, np.zeros(fallback.alpha.shape, dtype=bool)
+        # R_i^-i, overwritten where a layer applies with that layer's own values.
+        out = RenderResult(*(np.array(a, dtype=np.float32) for a in fallback))
+        valid = np.zeros(fallback.alpha.shape, dtype=bool)
+        pixels = slice(None)
+    else:
+        reference, valid = start
+        # Copies: the round before's proposals keep its reference for their pictures.
+        out = RenderResult(*(np.array(a, dtype=np.float32) for a in reference))
+        valid = np.array(valid, dtype=bool)
+        flat, inside = view.tile_pixels(tiles)
+        pixels = flat[inside]
+        if pixels.size == 0:
+            return out, valid
+        renders = view.render_layers(layers, tiles=tiles)
+        for a, b in zip(out, fallback):     # R_i^-i there, as in the whole reference
+            a.reshape(valid.size, -1)[pixels] = np.asarray(b).reshape(valid.size, -1)[pixels]
+    # Each pixel on its own: the same bits whether every pixel is made or only these.
+    n = valid.size
     if not renders:
         valid.reshape(-1)[pixels] = False
         return out, valid
@@ -191,8 +178,9 @@ def _reveal_in_tiles(view, layers, fallback: RenderResult, start: tuple, tiles: 
     alpha = np.stack([r.alpha.reshape(-1)[pixels] for r in renders])
     layer, applies = quantile_layers(depth, alpha, quantile=quantile, min_views=min_views)
     valid.reshape(-1)[pixels] = applies
+    at = np.arange(n)[pixels]
     for k, r in enumerate(renders):
-        take = pixels[applies & (layer == k)]
-        for a, b in zip(rows, r):
-            a[take] = b.reshape(valid.size, -1)[take]
+        take = at[applies & (layer == k)]
+        for a, b in zip(out, r):
+            a.reshape(n, -1)[take] = b.reshape(n, -1)[take]
     return out, valid

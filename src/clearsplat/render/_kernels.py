@@ -125,18 +125,16 @@ def composite_pair(splats, offsets, lists, keep_a, keep, tiles, width: int, heig
                          int(num_threads))
 
 
-def composite_layers(splats, offsets, lists, layer, num_layers: int, width: int, height: int,
-                     background, num_threads: int, tiles=None):
-    """Composite every layer in one pass over the tile lists: the visible Gaussians with
-    ``layer == k`` ((V,) int8, negative: in none) into ``(rgb (K, H, W, 3), alpha (K, H, W),
-    depth (K, H, W))[k]``, each equal to its own :func:`composite` bit for bit. ``tiles``: only
-    these tile ids (int32), the other pixels zero (None: every tile)."""
+def composite_layers(splats, offsets, lists, layer, num_layers: int, tiles, width: int,
+                     height: int, background, num_threads: int):
+    """Composite every layer in ``tiles`` (unique int32 tile ids) in one pass over their lists:
+    the visible Gaussians with ``layer == k`` ((V,) int8, negative: in none) into ``(rgb (K, H,
+    W, 3), alpha (K, H, W), depth (K, H, W))[k]``, each equal to its own :func:`composite` bit
+    for bit there; the pixels of the other tiles are zero."""
     shape = (num_layers, height, width)
-    make = np.empty if tiles is None else np.zeros
+    make = np.empty if len(tiles) == len(offsets) - 1 else np.zeros    # every tile: all written
     rgb = make(shape + (3,), dtype=np.float32)
     alpha, depth = make(shape, dtype=np.float32), make(shape, dtype=np.float32)
-    if tiles is None:
-        tiles = np.arange(-(-height // TILE) * -(-width // TILE), dtype=np.int32)
     _core.composite_layers(_c(splats, np.float32), _c(offsets, np.int64), _c(lists, np.int32),
                            _c(layer, np.int8), int(num_layers), _c(tiles, np.int32), int(width),
                            int(height), _c(background, np.float32), rgb, alpha, depth,

@@ -222,10 +222,11 @@ class PreparedView(_TiledView):
             raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
                                   "its floor, and a layer leaves some out", field="layers")
         h, w = self.camera.height, self.camera.width
-        tiles = None if tiles is None else self._check_tiles(tiles)
+        tiles = (np.arange(self.num_tiles, dtype=np.int32) if tiles is None
+                 else self._check_tiles(tiles))
         rgb, alpha, depth = _kernels.composite_layers(self._splats, self._offsets, self._lists,
-                                                      code, count, w, h, bg, self._num_threads,
-                                                      tiles=tiles)
+                                                      code, count, tiles, w, h, bg,
+                                                      self._num_threads)
         return [RenderResult(rgb[k], alpha[k], depth[k]) for k in range(count)]
 
     def render_pair(self, *, keep, first=None, tiles=None, start: RenderResult | None = None,
