@@ -206,9 +206,12 @@ def test_explained_candidates_are_rejected():
     world = make_world("object", num_views=4, seed=1, height=96, width=160)
     scene, _ = realistic_reconstruction(world, "pose", seed=1)
     extractor = get_extractor("local")
-    off = filter_distractors(scene, config=FilterConfig(color_explained=None),
+    # The rule alone: without silhouette_explained, which keeps the outlines of this scene's
+    # misplaced static content before any candidate is judged.
+    base = FilterConfig(silhouette_explained=None)
+    off = filter_distractors(scene, config=base.replace(color_explained=None),
                              extractor=extractor)
-    on = filter_distractors(scene, config=FilterConfig(color_explained=0.9),
+    on = filter_distractors(scene, config=base.replace(color_explained=0.9),
                             extractor=extractor)
     explained = [c for c in on.candidates if c.reason.startswith("explained")]
     assert explained                        # the estimated poses leave such candidates
@@ -235,7 +238,7 @@ def test_explained_candidates_are_rejected():
             [x.expanded for x in on.candidates if x.accepted] or [np.array([], int)]))
         assert not np.isin(only, removed).any()
     # With refine other than "static-depth" there is no static reference: nothing is explained.
-    depth = filter_distractors(scene, config=FilterConfig(color_explained=0.9, refine="depth"),
+    depth = filter_distractors(scene, config=base.replace(color_explained=0.9, refine="depth"),
                                extractor=extractor)
     assert not any(c.reason.startswith("explained") for c in depth.candidates)
 
@@ -277,3 +280,129 @@ def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(m
         assert "additional" not in c.scores and "joint" not in c.scores
     assert not any(c.accepted for c in res.candidates if c.range == 2)
 
+
+
+# --- silhouette_explained: flying pixels at a distractor's outline -------------------------
+
+def _slow_silhouettes(view_id, pixels, shapes, revealing, distances, raw, quantile):
+    """Per Gaussian, by the definition: kept by the refinement, its pixel with an in-image
+    8-neighbour holding none of its view's kept Gaussians, and a colour distance at most the
+    view's quantile over its Gaussians outside every candidate (with a distance)."""
+    proposed = np.zeros(view_id.size, bool)
+    for g in raw:
+        proposed[g] = True
+    out = np.zeros(view_id.size, bool)
+    for v, (h, w) in enumerate(shapes):
+        own = np.flatnonzero(view_id == v)
+        static = own[~proposed[own] & np.isfinite(distances[own])]
+        if static.size == 0:
+            continue
+        bound = np.quantile(distances[static], quantile)
+        held = {int(pixels[g]) for g in own if revealing[g] and pixels[g] >= 0}
+        for g in own:
+            p = int(pixels[g])
+            if not revealing[g] or p < 0 or not distances[g] <= bound:
+                continue
+            y, x = divmod(p, w)
+            edge = any(0 <= y + dy < h and 0 <= x + dx < w and (y + dy) * w + x + dx not in held
+                       for dy in (-1, 0, 1) for dx in (-1, 0, 1))
+            out[g] = edge
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_explained_silhouettes_match_the_definition(seed):
+    from types import SimpleNamespace
+
+    from clearsplat.filter.refine import explained_silhouettes
+
+    rng = np.random.default_rng(seed)
+    shapes = [(int(rng.integers(3, 12)), int(rng.integers(3, 12))) for _ in range(3)]
+    view_id, pixels = [], []
+    for v, (h, w) in enumerate(shapes):
+        count = int(rng.integers(h * w // 2, 2 * h * w))   # loose, doubled and empty pixels
+        view_id.append(np.full(count, v))
+        pixels.append(rng.integers(-1, h * w, count))
+    view_id, flat = np.concatenate(view_id), np.concatenate(pixels)
+    n = view_id.size
+    revealing = rng.random(n) < rng.uniform(0.2, 0.8)
+    distances = rng.uniform(0, 1, n).astype(np.float32)
+    distances[rng.random(n) < 0.15] = np.nan
+    raw = [rng.choice(n, int(rng.integers(1, n // 3)), replace=False) for _ in range(3)]
+    members = _members(view_id)
+    # A fourth view without Gaussians, as member_depths gives it: no pixels.
+    scene = SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)
+                                     for h, w in shapes + [(4, 4)]])
+    index = SimpleNamespace(members=members + [np.zeros(0, np.int64)])
+    per_view = [flat[m] for m in members] + [None]
+    for q in (0.25, 0.75, 1.0):
+        got = explained_silhouettes(scene, index, revealing, distances, per_view, raw,
+                                    quantile=q)
+        want = _slow_silhouettes(view_id, flat, shapes, revealing, distances, raw, q)
+        assert np.array_equal(got, want)
+        assert not (got & ~revealing).any()
+
+
+def test_explained_silhouettes_closed_form():
+    # One view, 5x5, one Gaussian per pixel; the refinement keeps a 3x3 block. Its outer ring
+    # of eight pixels is the silhouette, the centre is not; of the ring, those within the
+    # static bound are explained.
+    from types import SimpleNamespace
+
+    from clearsplat.filter.refine import explained_silhouettes
+
+    h = w = 5
+    pixels = np.arange(h * w)
+    block = np.zeros((h, w), bool)
+    block[1:4, 1:4] = True
+    revealing = block.ravel().copy()
+    distances = np.full(h * w, 0.1, np.float32)     # the 16 static Gaussians: bound 0.1
+    distances[revealing] = 0.5
+    distances[[6, 8]] = 0.05          # two corners of the ring show the static colour
+    distances[12] = 0.0               # the centre too, but it is inside
+    raw = [np.flatnonzero(revealing)]
+    got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)]),
+                                SimpleNamespace(members=[pixels]), revealing, distances,
+                                [pixels], raw, quantile=0.75)
+    assert np.flatnonzero(got).tolist() == [6, 8]
+
+
+def test_silhouette_explained_keeps_flying_pixels_and_every_distractor():
+    # Video frames of the street: the stand-in backbone blurs depth across each passer-by's
+    # outline, so the wall's pixels next to him float in front of the wall.
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    from clearsplat.synth import make_world, reconstruct
+    from clearsplat.synth.backbone import distractor_truth
+
+    world = make_world("street", num_views=6, seed=0, height=96, width=160,
+                       transients="video")
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    truth = distractor_truth(scene, world)
+    extractor = get_extractor("local")
+    off = filter_distractors(scene, config=FilterConfig(silhouette_explained=None),
+                             extractor=extractor)
+    on = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
+    static_off = (~off.keep & ~truth).sum()
+    static_on = (~on.keep & ~truth).sum()
+    assert static_on < 0.8 * static_off
+    assert (~on.keep & truth).sum() >= 0.99 * (~off.keep & truth).sum()
+    # What it keeps is what stood in front: of the static Gaussians only the off run removes,
+    # most lie in front of the clean surface at their pixel.
+    kept = np.flatnonzero(~off.keep & on.keep & ~truth)
+    z = np.empty(kept.size)
+    for v, cam in enumerate(scene.cameras):
+        sel = scene.view_id[kept] == v
+        g = kept[sel]
+        z[sel] = (cam.to_camera(scene.gaussians.means[g])[:, 2]
+                  / world.clean_depths[v].ravel()[scene.pixel_id[g]])
+    assert np.mean(z < 0.95) > 0.7
+
+
+@pytest.mark.parametrize("preset", ["paper", "paper-local"])
+def test_paper_presets_keep_no_silhouette(preset):
+    assert FilterConfig.preset(preset).silhouette_explained is None
+    assert FilterConfig().silhouette_explained == 0.75
+    from clearsplat.errors import ClearsplatError
+    with pytest.raises(ClearsplatError, match="silhouette_explained"):
+        FilterConfig(silhouette_explained=1.5)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from clearsplat.filter.masks import dilate, label8, touched_components
+from clearsplat.filter.masks import dilate, dilate8, label8, touched_components
 from clearsplat.filter.proposal import connected_regions
 
 
@@ -48,6 +48,24 @@ def test_dilate_matches_scipy(seed):
     disk = (yy * yy + xx * xx) <= r * r
     want = ndimage.binary_dilation(mask, structure=disk) if r > 0 else mask
     assert np.array_equal(dilate(mask, r), want)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_dilate8_matches_scipy(seed):
+    rng = np.random.default_rng(200 + seed)
+    h, w = rng.integers(1, 50, size=2)
+    mask = rng.random((h, w)) < rng.uniform(0.0, 0.6)
+    want = ndimage.binary_dilation(mask, structure=np.ones((3, 3), bool))
+    assert np.array_equal(dilate8(mask), want)
+
+
+def test_dilate8_closed_form():
+    mask = np.zeros((4, 5), bool)
+    mask[0, 0] = True       # a corner pixel reaches its three neighbours, nothing outside
+    want = np.zeros((4, 5), bool)
+    want[:2, :2] = True
+    assert np.array_equal(dilate8(mask), want)
+    assert not dilate8(np.zeros((3, 3), bool)).any()
 
 
 def test_label8_long_chains_match_scipy():

@@ -55,6 +55,7 @@ ABLATIONS = {
     "one-round": "default+rounds=1",
     "every-view": "default+neighbours=null+verify_views=centres",
     "no-color-explained": "default+color_explained=null",
+    "no-silhouettes": "default+silhouette_explained=null",
     "keep-removed-px": "default+verify_mask_removed=false",
     "remove-hidden": "default+verify_hidden=null",
     "hidden-fixed": "default+verify_hidden_widen=false",

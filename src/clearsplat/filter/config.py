@@ -318,6 +318,15 @@ class FilterConfig:
         additional and joint tests. Applies with ``refine="static-depth"`` (whose reference it
         reads) and ``verify``, and is ignored otherwise. Default 0.75; None: the paper (every
         candidate that passes is removed).
+    silhouette_explained : float or None
+        Keep the flying pixels at a distractor's outline: a depth network blurs depth across
+        the outline, so the Gaussians of the surface pixels next to a distractor float in front
+        of that surface while showing its colour. Per view, a Gaussian that the refinement
+        keeps is kept in the scene instead where its pixel has an 8-neighbour holding none of
+        the view's kept Gaussians (the outline of what stands in front) and its colour
+        distance (as for ``color_explained``) is at most this quantile of the distances of its
+        view's Gaussians outside every proposal region. Applies with
+        ``refine="static-depth"``. Default 0.75; None: off (the paper has no refinement).
     refine_passes : int
         How often ``refine="static-depth"`` builds its static reference. The first pass renders
         each view without every proposed Gaussian of the others; a proposal region covers whole
@@ -480,6 +489,7 @@ class FilterConfig:
     min_relative_score: float = 0.2
     relative_score_pool: Literal["sum", "median"] = "median"
     color_explained: float | None = 0.75
+    silhouette_explained: float | None = 0.75
     refine_passes: int = 2
     expand_connected: bool = True
     expand_color: bool = True
@@ -609,6 +619,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
     "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
     "color_explained": _unit(optional=True),
+    "silhouette_explained": _unit(optional=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "expand_color": FieldSpec("bool"),
@@ -641,7 +652,7 @@ PRESETS = {
                           align_depths=False,
                           verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                           min_relative_score=0.0, relative_score_pool="sum",
-                          color_explained=None,
+                          color_explained=None, silhouette_explained=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres", verify_mask_removed=False,
@@ -654,7 +665,7 @@ PRESETS = {
                                 align_depths=False,
                                 verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                                 min_relative_score=0.0, relative_score_pool="sum",
-                                color_explained=None,
+                                color_explained=None, silhouette_explained=None,
                                 refine_passes=1, expand_connected=False,
                                 refine_tolerance_depth=True, edge_tolerance=0,
                                 depth_scale_reach=0, rounds=1,

@@ -1,4 +1,4 @@
-"""Image-mask morphology the stages share: 8-connected components and disk dilation.
+"""Image-mask morphology the stages share: 8-connected components, disk and 3x3 dilation.
 
 Both are exact equivalents of the SciPy functions named in their docstrings (tested against
 them), written with array operations so that a filter run needs no SciPy.
@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["label8", "touched_components", "dilate"]
+__all__ = ["label8", "touched_components", "dilate", "dilate8"]
 
 
 def label8(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -86,6 +86,19 @@ def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     c0, c1 = max(cols[0] - r, 0), min(cols[-1] + r + 1, mask.shape[1])
     out = np.zeros_like(mask, dtype=bool)
     out[r0:r1, c0:c1] = _dilate_disk(mask[r0:r1, c0:c1], r)
+    return out
+
+
+def dilate8(mask: np.ndarray) -> np.ndarray:
+    """Dilate a (H, W) bool mask by the 3x3 square: each pixel with any of its 8 neighbours (or
+    itself) set; zeros outside the image. Equal to ``scipy.ndimage.binary_dilation`` with
+    ``structure=np.ones((3, 3))``."""
+    rows = mask.copy()
+    rows[1:] |= mask[:-1]
+    rows[:-1] |= mask[1:]
+    out = rows.copy()
+    out[:, 1:] |= rows[:, :-1]
+    out[:, :-1] |= rows[:, 1:]
     return out
 
 

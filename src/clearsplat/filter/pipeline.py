@@ -187,7 +187,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     # (clearsplat edit); only the accepted ones are removed.
     expand(state, candidates, proposals, region_map, refinement)
     if config.verify:
-        if refinement.color_distance is not None:   # ``color_explained``: out of register
+        if config.color_explained is not None and refinement.color_distance is not None:
+            # ``color_explained``: static content out of register
             passed = _unexplained(state, passed, raw, refinement)
         state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint

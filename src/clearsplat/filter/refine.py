@@ -17,13 +17,14 @@ import numpy as np
 from .._threads import thread_map
 from ..scene import Scene
 from .association import ViewIndex
-from .masks import label8, touched_components
+from .masks import dilate8, label8, touched_components
 from .robust import misregistration, tolerant_reference
 
 __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
            "join_touching", "member_depths", "member_pixels", "centre_pixels", "pixels_of",
            "removed_pixels",
-           "box_distance", "color_distances", "explained_candidates"]
+           "box_distance", "color_distances", "explained_candidates", "static_color_bound",
+           "explained_silhouettes"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -253,10 +254,7 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
     list of Candidate
         The explained ones, in order.
     """
-    proposed = np.zeros(distances.shape, dtype=bool)
-    for g in raw:
-        proposed[g] = True
-    static = ~proposed & np.isfinite(distances)
+    static = _static_distances(distances, raw)
     bound = {}
     out = []
     for c in candidates:
@@ -265,15 +263,86 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
         if d.size == 0:
             continue
         if c.view not in bound:
-            m = members[c.view]
-            ref = distances[m[static[m]]]
-            bound[c.view] = float(np.quantile(ref, quantile)) if ref.size else None
+            bound[c.view] = static_color_bound(distances, static, members[c.view], quantile)
         if bound[c.view] is None:
             continue
         median = float(np.median(d))
         c.scores["color"], c.scores["color_bound"] = median, bound[c.view]
         if median <= bound[c.view]:
             out.append(c)
+    return out
+
+
+def _static_distances(distances: np.ndarray, raw: list) -> np.ndarray:
+    """(N,) bool: the Gaussians outside every proposal region (``raw``, the candidates'
+    Gaussians before refinement) that have a colour distance."""
+    proposed = np.zeros(distances.shape, dtype=bool)
+    for g in raw:
+        proposed[g] = True
+    return ~proposed & np.isfinite(distances)
+
+
+def static_color_bound(distances: np.ndarray, static: np.ndarray, members: np.ndarray,
+                       quantile: float) -> float | None:
+    """The ``quantile`` of the colour distances (:func:`color_distances`, (N,)) of one view's
+    Gaussians (``members``) that are ``static`` ((N,) bool: outside every proposal region, with
+    a distance): how closely the other views reproduce that view's static content. None
+    where the view has no such Gaussian."""
+    ref = distances[members[static[members]]]
+    return float(np.quantile(ref, quantile)) if ref.size else None
+
+
+def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
+                          distances: np.ndarray, pixels: list, raw: list, *,
+                          quantile: float) -> np.ndarray:
+    """The Gaussians of ``revealing`` on its silhouette whose colour the other views show,
+    (N,) bool (``FilterConfig.silhouette_explained``).
+
+    A depth network blurs depth across an object's outline, so the Gaussians of the surface
+    pixels next to a distractor float between it and that surface (flying pixels): they stand
+    in front of the static reference, but show its colour. Per view, a Gaussian of
+    ``revealing`` is on the silhouette where its pixel has an 8-neighbour holding none of the
+    view's ``revealing`` Gaussians; it is explained where its colour distance is at most the
+    view's :func:`static_color_bound` at ``quantile``. NaN distances (no reference colour)
+    explain nothing.
+
+    Parameters
+    ----------
+    revealing : (N,) bool
+        What the refinement keeps.
+    distances : (N,) float
+        :func:`color_distances` to the static reference.
+    pixels : list of (M_v,) int64
+        Per view, its Gaussians' pixels (:func:`member_pixels`; -1: none); None for a view
+        without Gaussians (as :func:`member_depths` gives them).
+    raw : list of (M_k,) int
+        Every candidate's Gaussians before refinement (the static Gaussians are the others).
+    quantile : float
+        Of the view's static colour distances.
+    """
+    static = _static_distances(distances, raw)
+    out = np.zeros(revealing.shape, dtype=bool)
+    for view, members in enumerate(index.members):
+        pix = pixels[view]
+        if pix is None:         # a view without Gaussians
+            continue
+        sel = revealing[members] & (pix >= 0)
+        if not sel.any():
+            continue
+        bound = static_color_bound(distances, static, members, quantile)
+        if bound is None:
+            continue
+        cam = scene.cameras[view]
+        held = np.zeros(cam.height * cam.width, dtype=bool)
+        held[pix[sel]] = True
+        held = held.reshape(cam.height, cam.width)
+        # A pixel with a neighbour outside ``held`` (the image's border is not outside).
+        edge = held & dilate8(~held)
+        on = sel.copy()
+        on[sel] = edge.ravel()[pix[sel]]
+        with np.errstate(invalid="ignore"):
+            on &= distances[members] <= bound
+        out[members[on]] = True
     return out
 
 
@@ -326,7 +395,7 @@ class Refinement:
         or ``expand_connected`` needs them; None otherwise).
     color_distance : (N,) float32 or None
         Per Gaussian, :func:`color_distances` to the last static reference (with
-        ``color_explained``; None otherwise).
+        ``color_explained`` or ``silhouette_explained``; None otherwise).
     in_front : (N,) bool or None
         Of ``revealing``, those that qualify by depth alone, without the colour test (with
         ``expand_color=False`` and ``refine="static-depth"``, the refinement with a colour
@@ -381,8 +450,9 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
 
 
 def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
-    """(N,) bool: the Gaussians in front of the reference of ``config.refine``; with
-    ``color_explained``, each Gaussian's colour distance to the last static reference; with
+    """(N,) bool: the Gaussians in front of the reference of ``config.refine``, less the
+    silhouettes it explains (``silhouette_explained``); with ``color_explained`` or
+    ``silhouette_explained``, each Gaussian's colour distance to the last static reference; with
     ``expand_color=False``, the first of them by the depth test alone (else None each). The
     last pass's margins go to ``margins`` (per view)."""
     config = state.config
@@ -403,7 +473,8 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                            range(state.num_views), workers=config.num_threads)
     revealing = distances = in_front = None
     members = member_depths(state.scene, state.index)     # the same in every pass
-    explain = config.color_explained is not None and config.verify
+    silhouettes = config.silhouette_explained
+    explain = (config.color_explained is not None and config.verify) or silhouettes is not None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
         # Each later pass (``refine_passes``) builds the static reference without only the
@@ -426,6 +497,12 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                                         by_depth=last and not config.expand_color,
                                         margins=margins)
         proposed &= revealing
+    if silhouettes is not None:     # flying pixels at a distractor's outline stay
+        explained = explained_silhouettes(state.scene, state.index, revealing, distances,
+                                          members[1], raw, quantile=silhouettes)
+        revealing &= ~explained
+        if in_front is not None:
+            in_front &= ~explained
     return revealing, distances, in_front
 
 
