@@ -406,3 +406,7 @@ def test_paper_presets_keep_no_silhouette(preset):
     from clearsplat.errors import ClearsplatError
     with pytest.raises(ClearsplatError, match="silhouette_explained"):
         FilterConfig(silhouette_explained=1.5)
+    assert FilterConfig.preset(preset).widened_band_color is None
+    assert FilterConfig().widened_band_color == 0.99
+    with pytest.raises(ClearsplatError, match="widened_band_color"):
+        FilterConfig(widened_band_color=-0.5)

@@ -811,3 +811,64 @@ def test_rounds_with_color_explained_are_runs_on_what_each_kept():
     one = FilterConfig(rounds=1, color_explained=0.9, verify_mask_removed=False)
     first, second, _ = _two_rounds_are_two_runs(scene, one, ex)
     assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_widened_band_qualifies_by_colour_within_the_views_depth_noise(seed):
+    """``band_bounds`` (``widened_band_color``): where the view's depth noise widens its
+    margin, a Gaussian in front by more than ``margin`` but within the widened margin qualifies
+    when its colour distance exceeds its view's bound; a slow per-view reference of the rule.
+    Without a widened margin, or without a bound, nothing changes."""
+    from clearsplat.filter.refine import _SPREAD_FACTOR, member_depths
+    world = make_world("object", num_views=3, seed=4, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "depth", seed=seed, clean=True)
+    index = ViewIndex(scene)
+    ref = [np.asarray(d, np.float64) for d in world.clean_depths]
+    rng = np.random.default_rng(seed)
+    distance = rng.uniform(0, 1, len(scene)).astype(np.float32)
+    distance[rng.random(len(scene)) < 0.1] = np.nan
+    bounds = [0.5, None, 0.8]
+    margins = [None] * scene.num_views
+    kw = dict(margin=0.02, align_scale=True, color_distance=distance)
+    got = revealing_gaussians(scene, index, ref, margins=margins, band_bounds=bounds, **kw)
+    plain = revealing_gaussians(scene, index, ref, **kw)
+    depths, pixels = member_depths(scene, index)
+    for v, members in enumerate(index.members):
+        z, pix = depths[v], pixels[v]
+        scale, spread = view_depth_scales([z], [ref[v].ravel()[pix]])[0]
+        margin = max(0.02, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
+        assert margins[v] == margin
+        behind = ref[v].ravel()[pix]
+        ratio = z / scale / behind
+        expected = ratio < 1.0 - margin
+        if bounds[v] is not None and margin > 0.02:
+            d = distance[members]
+            band = (ratio >= 1.0 - margin) & (ratio < 0.98)
+            expected = expected | (band & ~np.isnan(d) & (np.nan_to_num(d) > bounds[v]))
+        np.testing.assert_array_equal(got[members], expected)
+        np.testing.assert_array_equal(plain[members], ratio < 1.0 - margin)
+    assert max(margins) > 0.02 and (got & ~plain).any()       # the rule takes some
+    assert not (plain & ~got).any()
+    # Without align_scale the margin is never widened: the bounds change nothing.
+    np.testing.assert_array_equal(
+        revealing_gaussians(scene, index, ref, margin=0.02, color_distance=distance,
+                            band_bounds=bounds),
+        revealing_gaussians(scene, index, ref, margin=0.02, color_distance=distance))
+
+
+def test_widened_band_color_finds_what_depth_noise_hides():
+    """The object world at 8 views with every artifact: within the views' widened margins
+    lies part of a distractor that only its colour tells from the surface behind."""
+    from clearsplat.features import get_extractor
+    from clearsplat.filter import filter_distractors
+    world = make_world("object", num_views=8, seed=0, height=128, width=224)
+    scene, truth = realistic_reconstruction(world, "all", seed=0)
+    extractor = get_extractor("local")
+    off = filter_distractors(scene, config=FilterConfig(widened_band_color=None),
+                             extractor=extractor)
+    on = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
+    recall = [(~r.keep & truth).sum() / truth.sum() for r in (off, on)]
+    static = [(~r.keep & ~truth).sum() / (~truth).sum() for r in (off, on)]
+    assert recall[1] > recall[0] + 0.03
+    assert static[1] < static[0] + 0.001
+    assert FilterConfig.preset("paper-local").widened_band_color is None

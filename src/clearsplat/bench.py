@@ -56,6 +56,7 @@ ABLATIONS = {
     "every-view": "default+neighbours=null+verify_views=centres",
     "no-color-explained": "default+color_explained=null",
     "no-silhouettes": "default+silhouette_explained=null",
+    "no-band-color": "default+widened_band_color=null",
     "keep-removed-px": "default+verify_mask_removed=false",
     "remove-hidden": "default+verify_hidden=null",
     "hidden-fixed": "default+verify_hidden_widen=false",

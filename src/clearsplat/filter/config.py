@@ -327,6 +327,14 @@ class FilterConfig:
         distance (as for ``color_explained``) is at most this quantile of the distances of its
         view's Gaussians outside every proposal region. Applies with
         ``refine="static-depth"``. Default 0.75; None: off (the paper has no refinement).
+    widened_band_color : float or None
+        With ``depth_scale_align``: where a view's depth noise widens its refinement margin, a
+        Gaussian in front of the static reference by more than ``refine_margin`` but less than
+        the widened margin also qualifies when its colour distance (as for
+        ``color_explained``) exceeds this quantile of the distances of its view's Gaussians
+        outside every proposal region: within the view's depth noise, a colour the other views
+        do not show there decides. Applies with ``refine="static-depth"``. Default 0.99;
+        None: off (depth alone decides within the widened margin).
     refine_passes : int
         How often ``refine="static-depth"`` builds its static reference. The first pass renders
         each view without every proposed Gaussian of the others; a proposal region covers whole
@@ -490,6 +498,7 @@ class FilterConfig:
     relative_score_pool: Literal["sum", "median"] = "median"
     color_explained: float | None = 0.75
     silhouette_explained: float | None = 0.75
+    widened_band_color: float | None = 0.99
     refine_passes: int = 2
     expand_connected: bool = True
     expand_color: bool = True
@@ -620,6 +629,7 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
     "color_explained": _unit(optional=True),
     "silhouette_explained": _unit(optional=True),
+    "widened_band_color": _unit(optional=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "expand_color": FieldSpec("bool"),
@@ -653,6 +663,7 @@ PRESETS = {
                           verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                           min_relative_score=0.0, relative_score_pool="sum",
                           color_explained=None, silhouette_explained=None,
+                          widened_band_color=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres", verify_mask_removed=False,
@@ -666,6 +677,7 @@ PRESETS = {
                                 verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                                 min_relative_score=0.0, relative_score_pool="sum",
                                 color_explained=None, silhouette_explained=None,
+                                widened_band_color=None,
                                 refine_passes=1, expand_connected=False,
                                 refine_tolerance_depth=True, edge_tolerance=0,
                                 depth_scale_reach=0, rounds=1,

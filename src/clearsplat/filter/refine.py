@@ -46,7 +46,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         color_distance: np.ndarray | None = None,
                         scale_depths: list[np.ndarray] | None = None,
                         by_depth: bool = False,
-                        margins: list | None = None) -> np.ndarray | tuple:
+                        margins: list | None = None,
+                        band_bounds: list | None = None) -> np.ndarray | tuple:
     """Gaussians in front of the surface that the other views show at their pixel, (N,) bool.
 
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
@@ -106,6 +107,11 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     margins : list, optional
         A list of one entry per view, filled with the margin the view's depth test used
         (``margin``, widened with ``align_scale``); None for a view without Gaussians.
+    band_bounds : list of float or None, optional
+        With ``color_distance``: per view, a colour distance. Where ``align_scale`` widens the
+        view's margin, a Gaussian in front by more than ``margin`` but not by the widened
+        margin also qualifies when its colour distance exceeds the view's entry (None: not in
+        that view; ``FilterConfig.widened_band_color``).
     """
     from .robust import local_depth_scales, view_depth_scales
     images = scene.images if images is None else images
@@ -138,6 +144,12 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             margins[view] = float(view_margin)
         front = (behind > 0) & (z > 0) & (z < (1.0 - view_margin) * behind)
         in_front = front.copy() if by_depth else None
+        bound = None if band_bounds is None else band_bounds[view]
+        if bound is not None and view_margin > margin:
+            # In front, but within the view's depth noise: its colour decides.
+            band = (behind > 0) & (z > 0) & (z < (1.0 - margin) * behind) & ~front
+            with np.errstate(invalid="ignore"):
+                front |= band & (color_distance[members] > bound)
         if color_threshold is not None and reference_rgbs is not None:
             image = images[view].reshape(-1, 3)
             ref = reference_rgbs[view].reshape(-1, 3)
@@ -379,8 +391,6 @@ def join_touching(seeds: np.ndarray, weak: np.ndarray, pixels: np.ndarray, heigh
     return joined
 
 
-
-
 @dataclass(eq=False)
 class Refinement:
     """What refinement found.
@@ -395,7 +405,8 @@ class Refinement:
         or ``expand_connected`` needs them; None otherwise).
     color_distance : (N,) float32 or None
         Per Gaussian, :func:`color_distances` to the last static reference (with
-        ``color_explained`` or ``silhouette_explained``; None otherwise).
+        ``color_explained``, ``silhouette_explained`` or ``widened_band_color``; None
+        otherwise).
     in_front : (N,) bool or None
         Of ``revealing``, those that qualify by depth alone, without the colour test (with
         ``expand_color=False`` and ``refine="static-depth"``, the refinement with a colour
@@ -451,8 +462,9 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
 
 def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     """(N,) bool: the Gaussians in front of the reference of ``config.refine``, less the
-    silhouettes it explains (``silhouette_explained``); with ``color_explained`` or
-    ``silhouette_explained``, each Gaussian's colour distance to the last static reference; with
+    silhouettes it explains (``silhouette_explained``); with ``color_explained``,
+    ``silhouette_explained`` or ``widened_band_color``, each Gaussian's colour distance to the
+    last static reference; with
     ``expand_color=False``, the first of them by the depth test alone (else None each). The
     last pass's margins go to ``margins`` (per view)."""
     config = state.config
@@ -473,8 +485,10 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                            range(state.num_views), workers=config.num_threads)
     revealing = distances = in_front = None
     members = member_depths(state.scene, state.index)     # the same in every pass
-    silhouettes = config.silhouette_explained
-    explain = (config.color_explained is not None and config.verify) or silhouettes is not None
+    silhouettes, band = config.silhouette_explained, config.widened_band_color
+    explain = ((config.color_explained is not None and config.verify)
+               or silhouettes is not None or band is not None)
+    bands = None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
         # Each later pass (``refine_passes``) builds the static reference without only the
@@ -492,10 +506,14 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
             _, lo, hi = reference
             distances = color_distances(state.scene, state.index, lo, images, members[1],
                                         reference_rgbs_hi=hi)
+            if band is not None:
+                static = _static_distances(distances, raw)
+                bands = [static_color_bound(distances, static, m, band)
+                         for m in state.index.members]
         revealing, in_front = _in_front(state, reference, images, members, distances,
                                         scale_depths=_scale_depths(state, depths),
                                         by_depth=last and not config.expand_color,
-                                        margins=margins)
+                                        margins=margins, band_bounds=bands)
         proposed &= revealing
     if silhouettes is not None:     # flying pixels at a distractor's outline stay
         explained = explained_silhouettes(state.scene, state.index, revealing, distances,
@@ -588,7 +606,7 @@ def _scale_depths(state, reference: list) -> list | None:
 def _in_front(state, reference: tuple, images: list, members: tuple,
               distances: np.ndarray | None = None,
               scale_depths: list | None = None, by_depth: bool = False,
-              margins: list | None = None) -> tuple:
+              margins: list | None = None, band_bounds: list | None = None) -> tuple:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
     (:func:`_tolerant`), and with ``by_depth`` those it keeps by depth alone (else None)."""
     config = state.config
@@ -602,7 +620,7 @@ def _in_front(state, reference: tuple, images: list, members: tuple,
                               color_grow=config.refine_color_grow,
                               workers=config.num_threads, members=members,
                               color_distance=distances, scale_depths=scale_depths,
-                              by_depth=by_depth, margins=margins)
+                              by_depth=by_depth, margins=margins, band_bounds=band_bounds)
     return out if by_depth else (out, None)
 
 
