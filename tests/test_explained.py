@@ -286,8 +286,8 @@ def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(m
 
 def _slow_silhouettes(view_id, pixels, shapes, revealing, distances, raw, quantile):
     """Per Gaussian, by the definition: kept by the refinement, its pixel with an in-image
-    8-neighbour holding none of its view's kept Gaussians, and a colour distance at most the
-    view's quantile over its Gaussians outside every candidate (with a distance)."""
+    8-neighbour holding Gaussians of its view but none of the kept ones, and a colour distance
+    at most the view's quantile over its Gaussians outside every candidate (with a distance)."""
     proposed = np.zeros(view_id.size, bool)
     for g in raw:
         proposed[g] = True
@@ -299,12 +299,13 @@ def _slow_silhouettes(view_id, pixels, shapes, revealing, distances, raw, quanti
             continue
         bound = np.quantile(distances[static], quantile)
         held = {int(pixels[g]) for g in own if revealing[g] and pixels[g] >= 0}
+        others = {int(pixels[g]) for g in own if pixels[g] >= 0} - held
         for g in own:
             p = int(pixels[g])
             if not revealing[g] or p < 0 or not distances[g] <= bound:
                 continue
             y, x = divmod(p, w)
-            edge = any(0 <= y + dy < h and 0 <= x + dx < w and (y + dy) * w + x + dx not in held
+            edge = any(0 <= y + dy < h and 0 <= x + dx < w and (y + dy) * w + x + dx in others
                        for dy in (-1, 0, 1) for dx in (-1, 0, 1))
             out[g] = edge
     return out
@@ -333,8 +334,9 @@ def test_explained_silhouettes_match_the_definition(seed):
     # A fourth view without Gaussians, as member_depths gives it: no pixels.
     scene = SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)
                                      for h, w in shapes + [(4, 4)]])
-    index = SimpleNamespace(members=members + [np.zeros(0, np.int64)])
     per_view = [flat[m] for m in members] + [None]
+    index = SimpleNamespace(members=members + [np.zeros(0, np.int64)],
+                            pixels=per_view[:-1] + [np.zeros(0, np.int64)])
     for q in (0.25, 0.75, 1.0):
         got = explained_silhouettes(scene, index, revealing, distances, per_view, raw,
                                     quantile=q)
@@ -362,9 +364,22 @@ def test_explained_silhouettes_closed_form():
     distances[12] = 0.0               # the centre too, but it is inside
     raw = [np.flatnonzero(revealing)]
     got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)]),
-                                SimpleNamespace(members=[pixels]), revealing, distances,
-                                [pixels], raw, quantile=0.75)
+                                SimpleNamespace(members=[pixels], pixels=[pixels]), revealing,
+                                distances, [pixels], raw, quantile=0.75)
     assert np.flatnonzero(got).tolist() == [6, 8]
+    # Placed by their centres (no pixel ids): the same pixels draw no outline.
+    got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)]),
+                                SimpleNamespace(members=[pixels], pixels=[pixels * 0 - 1]),
+                                revealing, distances, [pixels], raw, quantile=0.75)
+    assert not got.any()
+    # The same block on a grid of 2x2 cells (Gaussians at every other pixel of a 10x10
+    # image): no cell's pixel is an 8-neighbour of another's, so no outline is found.
+    cells = (2 * (pixels // w)) * (2 * w) + 2 * (pixels % w)
+    got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=2 * h,
+                                                                         width=2 * w)]),
+                                SimpleNamespace(members=[pixels], pixels=[cells]), revealing,
+                                distances, [cells], raw, quantile=0.75)
+    assert not got.any()
 
 
 def test_silhouette_explained_keeps_flying_pixels_and_every_distractor():

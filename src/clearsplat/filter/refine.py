@@ -313,9 +313,11 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
     A depth network blurs depth across an object's outline, so the Gaussians of the surface
     pixels next to a distractor float between it and that surface (flying pixels): they stand
     in front of the static reference, but show its colour. Per view, a Gaussian of
-    ``revealing`` is on the silhouette where its pixel has an 8-neighbour holding none of the
-    view's ``revealing`` Gaussians; it is explained where its colour distance is at most the
-    view's :func:`static_color_bound` at ``quantile``. NaN distances (no reference colour)
+    ``revealing`` is on the silhouette where its pixel has an 8-neighbour holding Gaussians of
+    the view but none of its ``revealing`` ones; it is explained where its colour distance is
+    at most the view's :func:`static_color_bound` at ``quantile``. Only pixel-aligned
+    Gaussians (``ViewIndex.pixels`` set: the backbone's own pixel) take part: the pixel a
+    Gaussian's centre projects to draws no outline. NaN distances (no reference colour)
     explain nothing.
 
     Parameters
@@ -326,7 +328,8 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
         :func:`color_distances` to the static reference.
     pixels : list of (M_v,) int64
         Per view, its Gaussians' pixels (:func:`member_pixels`; -1: none); None for a view
-        without Gaussians (as :func:`member_depths` gives them).
+        without Gaussians (as :func:`member_depths` gives them). Only those where
+        ``index.pixels`` is set (pixel-aligned) are read.
     raw : list of (M_k,) int
         Every candidate's Gaussians before refinement (the static Gaussians are the others).
     quantile : float
@@ -338,6 +341,9 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
         pix = pixels[view]
         if pix is None:         # a view without Gaussians
             continue
+        # The outline is drawn on the pixel grid of a pixel-aligned prediction: a Gaussian
+        # placed by its centre (no ``pixel_id``) is never explained, nor counts as outside.
+        pix = np.where(index.pixels[view] >= 0, pix, -1)
         sel = revealing[members] & (pix >= 0)
         if not sel.any():
             continue
@@ -347,9 +353,13 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
         cam = scene.cameras[view]
         held = np.zeros(cam.height * cam.width, dtype=bool)
         held[pix[sel]] = True
-        held = held.reshape(cam.height, cam.width)
-        # A pixel with a neighbour outside ``held`` (the image's border is not outside).
-        edge = held & dilate8(~held)
+        # Outside: pixels of the view's other Gaussians, none of them kept (a pixel without
+        # any Gaussian of the view is not outside).
+        outside = np.zeros(cam.height * cam.width, dtype=bool)
+        outside[pix[pix >= 0]] = True
+        outside &= ~held
+        edge = held.reshape(cam.height, cam.width) & dilate8(
+            outside.reshape(cam.height, cam.width))
         on = sel.copy()
         on[sel] = edge.ravel()[pix[sel]]
         with np.errstate(invalid="ignore"):
