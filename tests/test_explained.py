@@ -315,7 +315,7 @@ def _slow_silhouettes(view_id, pixels, shapes, revealing, distances, raw, quanti
 def test_explained_silhouettes_match_the_definition(seed):
     from types import SimpleNamespace
 
-    from clearsplat.filter.refine import explained_silhouettes
+    from clearsplat.filter.refine import explained_silhouettes, static_mask
 
     rng = np.random.default_rng(seed)
     shapes = [(int(rng.integers(3, 12)), int(rng.integers(3, 12))) for _ in range(3)]
@@ -338,7 +338,8 @@ def test_explained_silhouettes_match_the_definition(seed):
     index = SimpleNamespace(members=members + [np.zeros(0, np.int64)],
                             pixels=per_view[:-1] + [np.zeros(0, np.int64)])
     for q in (0.25, 0.75, 1.0):
-        got = explained_silhouettes(scene, index, revealing, distances, per_view, raw,
+        static = static_mask(distances, raw)
+        got = explained_silhouettes(scene, index, revealing, distances, per_view, static,
                                     quantile=q)
         want = _slow_silhouettes(view_id, flat, shapes, revealing, distances, raw, q)
         assert np.array_equal(got, want)
@@ -351,7 +352,7 @@ def test_explained_silhouettes_closed_form():
     # static bound are explained.
     from types import SimpleNamespace
 
-    from clearsplat.filter.refine import explained_silhouettes
+    from clearsplat.filter.refine import explained_silhouettes, static_mask
 
     h = w = 5
     pixels = np.arange(h * w)
@@ -365,12 +366,12 @@ def test_explained_silhouettes_closed_form():
     raw = [np.flatnonzero(revealing)]
     got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)]),
                                 SimpleNamespace(members=[pixels], pixels=[pixels]), revealing,
-                                distances, [pixels], raw, quantile=0.75)
+                                distances, [pixels], static_mask(distances, raw), quantile=0.75)
     assert np.flatnonzero(got).tolist() == [6, 8]
     # Placed by their centres (no pixel ids): the same pixels draw no outline.
     got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=h, width=w)]),
                                 SimpleNamespace(members=[pixels], pixels=[pixels * 0 - 1]),
-                                revealing, distances, [pixels], raw, quantile=0.75)
+                                revealing, distances, [pixels], static_mask(distances, raw), quantile=0.75)
     assert not got.any()
     # The same block on a grid of 2x2 cells (Gaussians at every other pixel of a 10x10
     # image): no cell's pixel is an 8-neighbour of another's, so no outline is found.
@@ -378,7 +379,7 @@ def test_explained_silhouettes_closed_form():
     got = explained_silhouettes(SimpleNamespace(cameras=[SimpleNamespace(height=2 * h,
                                                                          width=2 * w)]),
                                 SimpleNamespace(members=[pixels], pixels=[cells]), revealing,
-                                distances, [cells], raw, quantile=0.75)
+                                distances, [cells], static_mask(distances, raw), quantile=0.75)
     assert not got.any()
 
 

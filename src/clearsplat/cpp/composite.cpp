@@ -264,7 +264,6 @@ inline void finish_pixel(const TileState& s, int p, const float bg[3], float* rg
 void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tiles,
                      int64_t num_tiles, const float bg[3], float* rgb, float* alpha,
                      float* depth, int num_threads) {
-    if (!tiles) num_tiles = v.num_tiles();
 #pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {
         TileState s;
@@ -286,7 +285,6 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
                           const int32_t* tiles, int64_t num_tiles, const float bg[3],
                           float* rgb_a, float* alpha_a, float* depth_a, float* rgb_b,
                           float* alpha_b, float* depth_b, int num_threads) {
-    if (!tiles) num_tiles = v.num_tiles();
 #pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {
         TileState a, b;
@@ -310,7 +308,6 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
 void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
                             const int32_t* tiles, int64_t num_tiles, const float bg[3],
                             float* rgb, float* alpha, float* depth, int num_threads) {
-    if (!tiles) num_tiles = v.num_tiles();
     const int64_t px = int64_t(v.width) * v.height;
 #pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {

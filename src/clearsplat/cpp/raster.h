@@ -118,8 +118,8 @@ void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_
 
 // Every layer of a view in one pass over its tile lists: the Gaussians with layer[id] == k
 // (k < num_layers <= 127; negative: in none) into rgb[k] (K, H, W, 3), alpha[k] and depth[k]
-// (K, H, W) each, in `tiles` (all when null); each equals its separate composite_image bit for
-// bit.
+// (K, H, W) each, in the num_tiles tiles of `tiles` (only those pixels are written); each equals
+// its separate composite_image bit for bit there.
 void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
                             const int32_t* tiles, int64_t num_tiles, const float bg[3],
                             float* rgb, float* alpha, float* depth, int num_threads);

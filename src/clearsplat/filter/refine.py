@@ -23,8 +23,8 @@ from .robust import misregistration, tolerant_reference
 __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
            "join_touching", "member_depths", "member_pixels", "centre_pixels", "pixels_of",
            "removed_pixels",
-           "box_distance", "color_distances", "explained_candidates", "static_color_bound",
-           "explained_silhouettes"]
+           "box_distance", "color_distances", "explained_candidates", "static_mask",
+           "static_color_bound", "explained_silhouettes"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -266,7 +266,7 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
     list of Candidate
         The explained ones, in order.
     """
-    static = _static_distances(distances, raw)
+    static = static_mask(distances, raw)
     bound = {}
     out = []
     for c in candidates:
@@ -285,7 +285,7 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
     return out
 
 
-def _static_distances(distances: np.ndarray, raw: list) -> np.ndarray:
+def static_mask(distances: np.ndarray, raw: list) -> np.ndarray:
     """(N,) bool: the Gaussians outside every proposal region (``raw``, the candidates'
     Gaussians before refinement) that have a colour distance."""
     proposed = np.zeros(distances.shape, dtype=bool)
@@ -305,7 +305,7 @@ def static_color_bound(distances: np.ndarray, static: np.ndarray, members: np.nd
 
 
 def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
-                          distances: np.ndarray, pixels: list, raw: list, *,
+                          distances: np.ndarray, pixels: list, static: np.ndarray, *,
                           quantile: float) -> np.ndarray:
     """The Gaussians of ``revealing`` on its silhouette whose colour the other views show,
     (N,) bool (``FilterConfig.silhouette_explained``).
@@ -330,12 +330,11 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
         Per view, its Gaussians' pixels (:func:`member_pixels`; -1: none); None for a view
         without Gaussians (as :func:`member_depths` gives them). Only those where
         ``index.pixels`` is set (pixel-aligned) are read.
-    raw : list of (M_k,) int
-        Every candidate's Gaussians before refinement (the static Gaussians are the others).
+    static : (N,) bool
+        :func:`static_mask`: the Gaussians outside every proposal region, with a distance.
     quantile : float
         Of the view's static colour distances.
     """
-    static = _static_distances(distances, raw)
     out = np.zeros(revealing.shape, dtype=bool)
     for view, members in enumerate(index.members):
         pix = pixels[view]
@@ -498,7 +497,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     silhouettes, band = config.silhouette_explained, config.widened_band_color
     explain = ((config.color_explained is not None and config.verify)
                or silhouettes is not None or band is not None)
-    bands = None
+    bands = static = None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
         # Each later pass (``refine_passes``) builds the static reference without only the
@@ -516,8 +515,8 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
             _, lo, hi = reference
             distances = color_distances(state.scene, state.index, lo, images, members[1],
                                         reference_rgbs_hi=hi)
+            static = static_mask(distances, raw)    # what each view's bounds read
             if band is not None:
-                static = _static_distances(distances, raw)
                 bands = [static_color_bound(distances, static, m, band)
                          for m in state.index.members]
         revealing, in_front = _in_front(state, reference, images, members, distances,
@@ -527,7 +526,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         proposed &= revealing
     if silhouettes is not None:     # flying pixels at a distractor's outline stay
         explained = explained_silhouettes(state.scene, state.index, revealing, distances,
-                                          members[1], raw, quantile=silhouettes)
+                                          members[1], static, quantile=silhouettes)
         revealing &= ~explained
         if in_front is not None:
             in_front &= ~explained
