@@ -27,7 +27,9 @@ void radix_sort_pairs(uint32_t* keys, uint32_t* values, int64_t n, uint32_t* tmp
         for (int t = 0; t < parts; ++t) {
             int64_t* h = hist.data() + size_t(t) * kBuckets;
             std::fill(h, h + kBuckets, 0);
-            for (int64_t i = begin(t); i < begin(t + 1); ++i) ++h[(src_k[i] >> shift) & (kBuckets - 1)];
+            // Bounds in locals: a call in the loop's condition would divide on every pass.
+            const int64_t lo = begin(t), hi = begin(t + 1);
+            for (int64_t i = lo; i < hi; ++i) ++h[(src_k[i] >> shift) & (kBuckets - 1)];
         }
         // A digit shared by every key leaves the order unchanged: skip the pass.
         int64_t first = 0;
@@ -44,7 +46,8 @@ void radix_sort_pairs(uint32_t* keys, uint32_t* values, int64_t n, uint32_t* tmp
 #pragma omp parallel for schedule(static, 1) num_threads(parts)
         for (int t = 0; t < parts; ++t) {
             int64_t* h = hist.data() + size_t(t) * kBuckets;
-            for (int64_t i = begin(t); i < begin(t + 1); ++i) {
+            const int64_t lo = begin(t), hi = begin(t + 1);
+            for (int64_t i = lo; i < hi; ++i) {
                 const int64_t at = h[(src_k[i] >> shift) & (kBuckets - 1)]++;
                 dst_k[at] = src_k[i];
                 dst_v[at] = src_v[i];
@@ -69,7 +72,8 @@ BinResult bin_tiles(const Rect* rects, int64_t num, int grid_w, int grid_h, int 
 #pragma omp parallel for schedule(static, 1) num_threads(num_threads)
     for (int k = 0; k < parts; ++k) {
         int64_t* c = counts.data() + size_t(k) * num_tiles;
-        for (int64_t i = part_begin(k); i < part_begin(k + 1); ++i) {
+        const int64_t lo = part_begin(k), hi = part_begin(k + 1);  // not divided per pass
+        for (int64_t i = lo; i < hi; ++i) {
             const Rect& r = rects[i];
             for (int y = r.y0; y <= r.y1; ++y)
                 for (int x = r.x0; x <= r.x1; ++x) ++c[int64_t(y) * grid_w + x];
@@ -92,7 +96,8 @@ BinResult bin_tiles(const Rect* rects, int64_t num, int grid_w, int grid_h, int 
 #pragma omp parallel for schedule(static, 1) num_threads(num_threads)
     for (int k = 0; k < parts; ++k) {
         int64_t* at = counts.data() + size_t(k) * num_tiles;
-        for (int64_t i = part_begin(k); i < part_begin(k + 1); ++i) {
+        const int64_t lo = part_begin(k), hi = part_begin(k + 1);
+        for (int64_t i = lo; i < hi; ++i) {
             const Rect& r = rects[i];
             for (int y = r.y0; y <= r.y1; ++y)
                 for (int x = r.x0; x <= r.x1; ++x) out.lists[at[int64_t(y) * grid_w + x]++] = int32_t(i);
