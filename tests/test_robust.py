@@ -484,6 +484,58 @@ def test_expansion_by_depth_only_drops_what_the_colour_test_alone_kept(soft_scen
     assert dropped > 0
 
 
+def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_scene):
+    """``expand_color_bound`` decides every candidate's individual test as before and expands
+    each to a set between the depth-only expansion (``expand_color=False``) and the one
+    without a bound, which holds the candidate's own Gaussians."""
+    scene, _ = soft_scene
+    ex = get_extractor("local")
+    cfg = FilterConfig(rounds=1, verify_hidden=None)
+    runs = [filter_distractors(scene, config=c, extractor=ex) for c in
+            (cfg.replace(expand_color=False), cfg, cfg.replace(expand_color_bound=None))]
+    assert cfg.expand_color_bound == 0.99
+    scores = [[c.scores.get("individual") for c in r.candidates] for r in runs]
+    assert scores[0] == scores[1] == scores[2]
+    below = above = 0
+    for depth, bounded, every in zip(*(r.candidates for r in runs)):
+        if bounded.expanded is None:
+            continue
+        assert set(depth.gaussians) <= set(depth.expanded) <= set(bounded.expanded) \
+            <= set(every.expanded)
+        below += len(every.expanded) - len(bounded.expanded)
+        above += len(bounded.expanded) - len(depth.expanded)
+    assert below > 0 and above > 0
+
+
+def test_beyond_static_colors_matches_the_definition():
+    from clearsplat.filter.refine import beyond_static_colors
+    rng = np.random.default_rng(7)
+    n = 600
+    distances = rng.uniform(0, 1, n).astype(np.float32)
+    distances[rng.uniform(size=n) < 0.1] = np.nan
+    selected = rng.uniform(size=n) < 0.5
+    static = (rng.uniform(size=n) < 0.6) & np.isfinite(distances)
+    members = [np.flatnonzero(np.arange(n) % 3 == v) for v in range(3)]
+    members.append(np.array([], dtype=np.int64))
+    static[members[2]] = False          # a view without static Gaussians: nothing beyond
+    for q in (0.0, 0.5, 0.99, 1.0):
+        got = beyond_static_colors(distances, selected, static, members, q)
+        want = np.zeros(n, dtype=bool)
+        for m in members:
+            ref = [float(distances[i]) for i in m if static[i]]
+            if not ref:
+                continue
+            bound = float(np.quantile(np.array(ref), q))
+            for i in m:
+                want[i] = bool(selected[i]) and float(distances[i]) > bound
+        np.testing.assert_array_equal(got, want)
+        assert not got[members[2]].any()
+        if q == 1.0:    # closed form: beyond the largest static distance of the view
+            for m in members[:2]:
+                top = np.nanmax(np.where(static[m], distances[m], np.nan))
+                np.testing.assert_array_equal(got[m], selected[m] & (distances[m] > top))
+
+
 def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):
     """Where the reference has no holes the nearest surface within the radius is never farther
     than the one at the pixel, so judging depth at the pixel (``refine_tolerance_depth=False``)

@@ -327,6 +327,13 @@ class FilterConfig:
         distance (as for ``color_explained``) is at most this quantile of the distances of its
         view's Gaussians outside every proposal region. Applies with
         ``refine="static-depth"``. Default 0.75; None: off (the paper has no refinement).
+    silhouette_unreliable : bool
+        With ``silhouette_explained``: whether the pixels of the silhouettes it keeps stay
+        among those verification leaves out (``verify_mask``), as every pixel of a Gaussian in
+        front of the static reference does: a flying pixel mixes the distractor's colour into
+        the surface's, so comparing another view's render with it says nothing either way.
+        True by default (docs/method.md); False: only the pixels of the Gaussians the
+        refinement finally keeps are left out.
     widened_band_color : float or None
         With ``depth_scale_align``: where a view's depth noise widens its refinement margin, a
         Gaussian in front of the static reference by more than ``refine_margin`` but less than
@@ -357,6 +364,15 @@ class FilterConfig:
         front of what lies behind it, while a static surface beside it that the other views
         render in another colour (misregistration, an occlusion edge) touches the
         reference. Without ``refine_color`` both are the same.
+    expand_color_bound : float or None
+        With ``expand_color``: beyond the candidate's own Gaussians, a Gaussian the refinement
+        keeps for its colour alone joins the expansion only where its colour distance (as for
+        ``color_explained``) exceeds this quantile of the distances of its view's Gaussians
+        outside every proposal region. Around a distractor the dilation reaches static
+        surfaces whose fine texture the other views render a pixel or two off (fences,
+        spokes, print): their colours differ from the reference as much as the view's static
+        content often does elsewhere, and colour alone says nothing there. Applies with
+        ``refine="static-depth"``. Default 0.99; None: every Gaussian the refinement keeps.
     rounds : int or "auto"
         How often the whole procedure runs. Each later round runs it again on the Gaussians
         the earlier rounds kept, so that the distractors found so far no longer stand in the
@@ -498,10 +514,12 @@ class FilterConfig:
     relative_score_pool: Literal["sum", "median"] = "median"
     color_explained: float | None = 0.75
     silhouette_explained: float | None = 0.75
+    silhouette_unreliable: bool = True
     widened_band_color: float | None = 0.99
     refine_passes: int = 2
     expand_connected: bool = True
     expand_color: bool = True
+    expand_color_bound: float | None = 0.99
     refine_tolerance_depth: bool = False
     edge_tolerance: int = 0
     depth_scale_reach: int = 0
@@ -629,10 +647,12 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
     "color_explained": _unit(optional=True),
     "silhouette_explained": _unit(optional=True),
+    "silhouette_unreliable": FieldSpec("bool"),
     "widened_band_color": _unit(optional=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
     "expand_color": FieldSpec("bool"),
+    "expand_color_bound": _unit(optional=True),
     "refine_tolerance_depth": FieldSpec("bool"),
     "edge_tolerance": FieldSpec("integer", 0),
     "depth_scale_reach": FieldSpec("integer", 0),
@@ -663,7 +683,7 @@ PRESETS = {
                           verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                           min_relative_score=0.0, relative_score_pool="sum",
                           color_explained=None, silhouette_explained=None,
-                          widened_band_color=None,
+                          widened_band_color=None, expand_color_bound=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
                           edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
                           neighbours=None, verify_views="centres", verify_mask_removed=False,
@@ -677,7 +697,7 @@ PRESETS = {
                                 verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
                                 min_relative_score=0.0, relative_score_pool="sum",
                                 color_explained=None, silhouette_explained=None,
-                                widened_band_color=None,
+                                widened_band_color=None, expand_color_bound=None,
                                 refine_passes=1, expand_connected=False,
                                 refine_tolerance_depth=True, edge_tolerance=0,
                                 depth_scale_reach=0, rounds=1,

@@ -5,7 +5,9 @@ hat C_k, the Gaussians of its region dilated by ``dilation`` pixels within the s
 so that the soft edge of a distractor goes with it. With ``expand_connected`` it also takes
 every 8-connected group of pixels touching the region whose Gaussians stand in front of the
 static reference, within the cells of low similarity; with ``expand_color=False`` it takes,
-beyond the candidate's own Gaussians, only those in front of the static reference by depth.
+beyond the candidate's own Gaussians, only those in front of the static reference by depth,
+and with ``expand_color_bound`` also those whose colour differs from the other views' by more
+than the view's static content does.
 """
 
 from __future__ import annotations
@@ -34,8 +36,9 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
         pixels.
     """
     config, revealing = state.config, refinement.revealing
-    # Beyond the candidate's own Gaussians, only those in front by depth (``expand_color``).
-    by_depth = refinement.in_front if not config.expand_color else None
+    # Beyond the candidate's own Gaussians, only those in front by depth (``expand_color``),
+    # and with ``expand_color_bound`` those whose colour is far beyond the static content's.
+    expandable = refinement.expandable
     grow = config.expand_connected and revealing is not None
     labels: dict = {}
     support: dict = {}      # view -> the support upsampled to pixels, made once
@@ -47,8 +50,8 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
             pixels = grow_connected(pixels, c.view, labels, refinement.front_pixels[c.view],
                                     proposals[c.view], state.tau2)
         g = region_map(c.view, pixels)
-        if by_depth is not None:
-            c.expanded = g[by_depth[g] | np.isin(g, c.gaussians)]
+        if expandable is not None:
+            c.expanded = g[expandable[g] | np.isin(g, c.gaussians)]
         else:
             c.expanded = g if revealing is None else g[revealing[g]]
 

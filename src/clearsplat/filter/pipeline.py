@@ -170,7 +170,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
                             else g[revealing[g]]) for k, (r, g) in enumerate(zip(regions, raw))]
     for p in proposals:         # pixels verification leaves out (``verify_mask``)
         if config.verify_mask != "proposals":
-            p.unreliable = refinement.front_pixels[p.view]
+            p.unreliable = refinement.unreliable_pixels[p.view]
         if removed is not None:
             p.unreliable = (removed[p.view] if p.unreliable is None
                             else p.unreliable | removed[p.view])

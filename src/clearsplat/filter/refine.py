@@ -416,10 +416,12 @@ class Refinement:
         Per Gaussian, :func:`color_distances` to the last static reference (with
         ``color_explained``, ``silhouette_explained`` or ``widened_band_color``; None
         otherwise).
-    in_front : (N,) bool or None
-        Of ``revealing``, those that qualify by depth alone, without the colour test (with
-        ``expand_color=False`` and ``refine="static-depth"``, the refinement with a colour
-        test; None otherwise).
+    expandable : (N,) bool or None
+        Of ``revealing``, those the expansion may take beyond a candidate's own Gaussians:
+        those that qualify by depth alone, and with ``expand_color_bound`` also those kept for
+        their colour alone whose colour distance exceeds their view's bound (with
+        ``refine="static-depth"`` and either ``expand_color=False`` or ``expand_color_bound``;
+        None otherwise: the expansion takes every one of ``revealing``).
     margins : list of float, or None
         Per view, the margin of the last pass's depth test, widened by the view's depth noise
         with ``depth_scale_align`` (:func:`revealing_gaussians`; None with ``refine="none"``):
@@ -429,8 +431,9 @@ class Refinement:
     revealing: np.ndarray | None
     front_pixels: list | None = None
     color_distance: np.ndarray | None = None
-    in_front: np.ndarray | None = None
+    expandable: np.ndarray | None = None
     margins: list | None = None
+    unreliable_pixels: list | None = None
 
 
 def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
@@ -460,22 +463,29 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
     """
     config = state.config
     margins = [None] * state.num_views
-    revealing, distances, in_front = _revealing(state, renders, images, raw, margins)
-    front = None
+    revealing, distances, expandable, explained = _revealing(state, renders, images, raw,
+                                                             margins)
+    front = unreliable = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
-    return Refinement(revealing, front, distances, in_front,
-                      None if revealing is None else margins)
+        unreliable = front
+        if explained is not None and config.silhouette_unreliable and explained.any():
+            # The pixels of revealing | explained: those of either.
+            unreliable = [f | pixels_of(state.scene, state.index, v, explained)
+                          for v, f in enumerate(front)]
+    return Refinement(revealing, front, distances, expandable,
+                      None if revealing is None else margins, unreliable)
 
 
 def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     """(N,) bool: the Gaussians in front of the reference of ``config.refine``, less the
-    silhouettes it explains (``silhouette_explained``); with ``color_explained``,
-    ``silhouette_explained`` or ``widened_band_color``, each Gaussian's colour distance to the
-    last static reference; with
-    ``expand_color=False``, the first of them by the depth test alone (else None each). The
-    last pass's margins go to ``margins`` (per view)."""
+    silhouettes it explains (``silhouette_explained``; those as the fourth item, else None);
+    with ``color_explained``,
+    ``silhouette_explained``, ``widened_band_color`` or ``expand_color_bound``, each
+    Gaussian's colour distance to the last static reference; with ``expand_color=False`` or
+    ``expand_color_bound``, those of the first the expansion may take (``Refinement.expandable``;
+    else None each). The last pass's margins go to ``margins`` (per view)."""
     config = state.config
     excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
@@ -484,9 +494,9 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                                         align_scale=config.depth_scale_align,
                                         scale_reach=config.depth_scale_reach,
                                         workers=config.num_threads, margins=margins)
-        return revealing, None, None     # no colour test: the expansion reads revealing
+        return revealing, None, None, None  # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
-        return None, None, None
+        return None, None, None, None
     proposed = state.mask(*raw)
     radii = config.refine_tolerance
     if radii == "auto":   # each view's measured misregistration with the others
@@ -496,7 +506,8 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     members = member_depths(state.scene, state.index)     # the same in every pass
     silhouettes, band = config.silhouette_explained, config.widened_band_color
     explain = ((config.color_explained is not None and config.verify)
-               or silhouettes is not None or band is not None)
+               or silhouettes is not None or band is not None
+               or (config.expand_color and config.expand_color_bound is not None))
     bands = static = None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
@@ -521,16 +532,43 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                          for m in state.index.members]
         revealing, in_front = _in_front(state, reference, images, members, distances,
                                         scale_depths=_scale_depths(state, depths),
-                                        by_depth=last and not config.expand_color,
+                                        by_depth=last and _by_depth(config),
                                         margins=margins, band_bounds=bands)
         proposed &= revealing
+    expandable = in_front       # by depth; with ``expand_color_bound`` far-off colours too
+    if expandable is not None and config.expand_color:
+        expandable = expandable | beyond_static_colors(distances, revealing, static,
+                                                       state.index.members,
+                                                       config.expand_color_bound)
+    explained = None
     if silhouettes is not None:     # flying pixels at a distractor's outline stay
         explained = explained_silhouettes(state.scene, state.index, revealing, distances,
                                           members[1], static, quantile=silhouettes)
         revealing &= ~explained
-        if in_front is not None:
-            in_front &= ~explained
-    return revealing, distances, in_front
+        if expandable is not None:
+            expandable &= ~explained
+    return revealing, distances, expandable, explained
+
+
+def _by_depth(config) -> bool:
+    """Whether the refinement's last pass also tells which Gaussians qualify by depth, for the
+    expansion (``Refinement.expandable``): without ``expand_color``, or with
+    ``expand_color_bound``."""
+    return not config.expand_color or config.expand_color_bound is not None
+
+
+def beyond_static_colors(distances: np.ndarray, selected: np.ndarray, static: np.ndarray,
+                         members: list, quantile: float) -> np.ndarray:
+    """(N,) bool: the Gaussians of ``selected`` whose colour distance (:func:`color_distances`)
+    exceeds the ``quantile`` of their view's ``static`` distances (:func:`static_color_bound`;
+    none in a view without static Gaussians)."""
+    out = np.zeros(distances.shape, dtype=bool)
+    for m in members:
+        bound = static_color_bound(distances, static, m, quantile)
+        if bound is not None:
+            with np.errstate(invalid="ignore"):     # NaN distances: not beyond
+                out[m] = selected[m] & (distances[m] > bound)
+    return out
 
 
 def static_reference(state, excl: list, proposed: np.ndarray, *,
