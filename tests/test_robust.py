@@ -508,7 +508,7 @@ def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_sc
 
 
 def test_beyond_static_colors_matches_the_definition():
-    from clearsplat.filter.refine import beyond_static_colors
+    from clearsplat.filter.refine import beyond_static_colors, static_color_bounds
     rng = np.random.default_rng(7)
     n = 600
     distances = rng.uniform(0, 1, n).astype(np.float32)
@@ -519,7 +519,8 @@ def test_beyond_static_colors_matches_the_definition():
     members.append(np.array([], dtype=np.int64))
     static[members[2]] = False          # a view without static Gaussians: nothing beyond
     for q in (0.0, 0.5, 0.99, 1.0):
-        got = beyond_static_colors(distances, selected, static, members, q)
+        bounds = static_color_bounds(distances, static, members)(q)
+        got = beyond_static_colors(distances, selected, members, bounds)
         want = np.zeros(n, dtype=bool)
         for m in members:
             ref = [float(distances[i]) for i in m if static[i]]

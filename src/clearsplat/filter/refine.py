@@ -11,6 +11,7 @@ distractor in front of view i's cannot hide it (:func:`static_reference`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -24,7 +25,8 @@ __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "w
            "join_touching", "member_depths", "member_pixels", "centre_pixels", "pixels_of",
            "removed_pixels",
            "box_distance", "color_distances", "explained_candidates", "static_mask",
-           "static_color_bound", "explained_silhouettes"]
+           "static_color_bound", "static_color_bounds", "explained_silhouettes",
+           "beyond_static_colors"]
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
@@ -294,6 +296,19 @@ def static_mask(distances: np.ndarray, raw: list) -> np.ndarray:
     return ~proposed & np.isfinite(distances)
 
 
+def static_color_bounds(distances: np.ndarray, static: np.ndarray, members: list) -> Callable:
+    """Per view (``members``), :func:`static_color_bound` at a quantile: ``bounds(q)`` gives
+    the list, computed once per quantile (the colour rules of one refinement share them)."""
+    made: dict = {}
+
+    def bounds(quantile: float) -> list:
+        if quantile not in made:
+            made[quantile] = [static_color_bound(distances, static, m, quantile)
+                              for m in members]
+        return made[quantile]
+    return bounds
+
+
 def static_color_bound(distances: np.ndarray, static: np.ndarray, members: np.ndarray,
                        quantile: float) -> float | None:
     """The ``quantile`` of the colour distances (:func:`color_distances`, (N,)) of one view's
@@ -481,11 +496,11 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
 def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     """(N,) bool: the Gaussians in front of the reference of ``config.refine``, less the
     silhouettes it explains (``silhouette_explained``; those as the fourth item, else None);
-    with ``color_explained``,
-    ``silhouette_explained``, ``widened_band_color`` or ``expand_color_bound``, each
-    Gaussian's colour distance to the last static reference; with ``expand_color=False`` or
-    ``expand_color_bound``, those of the first the expansion may take (``Refinement.expandable``;
-    else None each). The last pass's margins go to ``margins`` (per view)."""
+    with ``color_explained``, ``silhouette_explained``, ``widened_band_color`` or
+    ``expand_color_bound``, each Gaussian's colour distance to the last static reference; with
+    ``expand_color=False`` or ``expand_color_bound``, those of the first the expansion may take
+    (``Refinement.expandable``; else None each). The last pass's margins go to ``margins`` (per
+    view)."""
     config = state.config
     excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
@@ -508,7 +523,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     explain = ((config.color_explained is not None and config.verify)
                or silhouettes is not None or band is not None
                or (config.expand_color and config.expand_color_bound is not None))
-    bands = static = None
+    bands = static = bounds = None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
         # Each later pass (``refine_passes``) builds the static reference without only the
@@ -527,9 +542,9 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
             distances = color_distances(state.scene, state.index, lo, images, members[1],
                                         reference_rgbs_hi=hi)
             static = static_mask(distances, raw)    # what each view's bounds read
+            bounds = static_color_bounds(distances, static, state.index.members)
             if band is not None:
-                bands = [static_color_bound(distances, static, m, band)
-                         for m in state.index.members]
+                bands = bounds(band)
         revealing, in_front = _in_front(state, reference, images, members, distances,
                                         scale_depths=_scale_depths(state, depths),
                                         by_depth=last and _by_depth(config),
@@ -537,9 +552,9 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         proposed &= revealing
     expandable = in_front       # by depth; with ``expand_color_bound`` far-off colours too
     if expandable is not None and config.expand_color:
-        expandable = expandable | beyond_static_colors(distances, revealing, static,
+        expandable = expandable | beyond_static_colors(distances, revealing,
                                                        state.index.members,
-                                                       config.expand_color_bound)
+                                                       bounds(config.expand_color_bound))
     explained = None
     if silhouettes is not None:     # flying pixels at a distractor's outline stay
         explained = explained_silhouettes(state.scene, state.index, revealing, distances,
@@ -557,14 +572,13 @@ def _by_depth(config) -> bool:
     return not config.expand_color or config.expand_color_bound is not None
 
 
-def beyond_static_colors(distances: np.ndarray, selected: np.ndarray, static: np.ndarray,
-                         members: list, quantile: float) -> np.ndarray:
+def beyond_static_colors(distances: np.ndarray, selected: np.ndarray, members: list,
+                         bounds: list) -> np.ndarray:
     """(N,) bool: the Gaussians of ``selected`` whose colour distance (:func:`color_distances`)
-    exceeds the ``quantile`` of their view's ``static`` distances (:func:`static_color_bound`;
-    none in a view without static Gaussians)."""
+    exceeds their view's entry of ``bounds`` (per view, as :func:`static_color_bounds` gives
+    them; None: none of that view)."""
     out = np.zeros(distances.shape, dtype=bool)
-    for m in members:
-        bound = static_color_bound(distances, static, m, quantile)
+    for m, bound in zip(members, bounds):
         if bound is not None:
             with np.errstate(invalid="ignore"):     # NaN distances: not beyond
                 out[m] = selected[m] & (distances[m] > bound)
