@@ -65,6 +65,33 @@ def test_output_does_not_depend_on_the_view_budget(street, extractor, rounds):
     assert b.stats["views_peak_bytes"] < a.stats["views_peak_bytes"]
 
 
+def test_prepared_views_make_room_before_preparing():
+    """The kept views and the one being prepared stay within the budget together: room for a
+    view as large as the largest so far is made first."""
+    class Fake:
+        memory_bytes = 100
+        visible = np.arange(3)
+
+    made = []
+
+    def make(i):
+        made.append(i)
+        return Fake()
+
+    views = PreparedViews(8, [None] * 4, make, budget=250)
+    for _ in range(2):
+        for i in range(4):
+            views[i]
+            assert views.held_bytes <= 250
+    # Room for two views and the one being prepared: 0 stays, the second slot turns over.
+    assert made == [0, 1, 2, 3, 1, 2, 3]
+    assert views.peak_bytes == 200
+    unlimited = PreparedViews(8, [None] * 4, make, budget=None)
+    for i in range(4):
+        unlimited[i]
+    assert unlimited.peak_bytes == 400
+
+
 def test_prepared_views_keep_the_first_within_budget(street):
     made = []
 

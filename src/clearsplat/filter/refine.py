@@ -550,6 +550,9 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                                         by_depth=last and _by_depth(config),
                                         margins=margins, band_bounds=bands)
         proposed &= revealing
+        # This pass's references are not read again: dropped before the next pass makes its
+        # own, so that two passes' (four images per view) are never held at once.
+        depths = rgbs = reference = None
     expandable = in_front       # by depth; with ``expand_color_bound`` far-off colours too
     if expandable is not None and config.expand_color:
         expandable = expandable | beyond_static_colors(distances, revealing,

@@ -71,6 +71,7 @@ class PreparedViews:
         self._counts: list = [None] * len(self.cameras)
         self.prepared = 0
         self.peak_bytes = 0
+        self._largest = 0           # bytes of the largest view prepared so far
         self.skipped = 0
         self.pruned_bytes = 0
         self._floor: Callable | None = None
@@ -87,8 +88,12 @@ class PreparedViews:
             return view
         if self._make is None:
             raise RuntimeError(f"view {i} is asked for after its view set was released")
+        # Room first, for a view as large as the largest so far: the kept views and the new
+        # one together stay within the budget (one view over it otherwise).
+        self._fit(None, incoming=self._largest)
         view = self._make(i)
         self.prepared += 1
+        self._largest = max(self._largest, view.memory_bytes)
         if self._seen[i] is None:
             self._seen[i] = self._bits(view)
         if self._floor is not None:
@@ -102,14 +107,15 @@ class PreparedViews:
         """Bytes the views kept now hold."""
         return sum(v.memory_bytes for v in self._kept.values())
 
-    def _fit(self, current: int) -> None:
-        """Drop the most recently prepared views other than ``current`` until within budget."""
+    def _fit(self, current: int | None, *, incoming: int = 0) -> None:
+        """Drop the most recently prepared views other than ``current`` until they hold at most
+        the budget less ``incoming`` bytes (a view about to be prepared)."""
         held = self.held_bytes
         self.peak_bytes = max(self.peak_bytes, held)
         if self.budget is None:
             return
         for j in reversed(list(self._kept)):
-            if held <= self.budget:
+            if held + incoming <= self.budget:
                 break
             if j != current:
                 held -= self._kept.pop(j).memory_bytes
