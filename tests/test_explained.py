@@ -8,7 +8,7 @@ from clearsplat import Camera, Gaussians, Scene
 from clearsplat.filter import FilterConfig
 from clearsplat.filter.association import ViewIndex
 from clearsplat.filter.refine import (box_distance, color_distances, explained_candidates,
-                                      member_pixels)
+                                      member_pixels, static_color_bounds, static_mask)
 from clearsplat.filter.result import Candidate
 
 
@@ -137,6 +137,17 @@ def test_explained_candidates_compare_with_the_views_unproposed_gaussians():
     assert c.scores["color_bound"] == pytest.approx(np.quantile(d[160:200], 0.5))
     # A stricter quantile explains fewer.
     assert explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.01) == [a]
+    # The bounds a refinement made already (static_color_bounds) decide the same; given
+    # bounds are what the candidates are held against (None: that view judges nothing).
+    made = static_color_bounds(d, static_mask(d, raw), _members(view_id))
+    for q in (0.01, 0.5, 0.9):
+        assert (explained_candidates([a, b, c], raw, d, _members(view_id), quantile=q,
+                                     bounds=made(q))
+                == explained_candidates([a, b, c], raw, d, _members(view_id), quantile=q))
+    assert explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.9,
+                                bounds=[1.0, 0.0]) == [a, b]
+    assert explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.9,
+                                bounds=[None, 1.0]) == [c]
 
 
 def test_a_candidate_is_judged_on_what_it_removes():
@@ -268,7 +279,7 @@ def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(m
     scene, _ = realistic_reconstruction(world, "pose", seed=1)
     chosen = []
 
-    def every_second_range(candidates, raw, distances, members, *, quantile):
+    def every_second_range(candidates, raw, distances, members, *, quantile, bounds=None):
         out = [c for c in candidates if c.range == 2]
         chosen.extend(out)
         return out

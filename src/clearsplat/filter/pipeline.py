@@ -209,9 +209,11 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
 def _unexplained(state, candidates: list, raw: list, refinement) -> list:
     """``candidates`` less those whose expansion the other views explain
     (``color_explained``), which are rejected."""
+    quantile = state.config.color_explained
+    bounds = refinement.color_bounds
     explained = explained_candidates(candidates, raw, refinement.color_distance,
-                                     state.index.members,
-                                     quantile=state.config.color_explained)
+                                     state.index.members, quantile=quantile,
+                                     bounds=None if bounds is None else bounds(quantile))
     for c in explained:
         c.reason = "explained by the other views: static content out of register"
     out = {c.index for c in explained}

@@ -239,7 +239,8 @@ def color_distances(scene: Scene, index: ViewIndex, reference_rgbs: list, images
 
 
 def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
-                         members: list, *, quantile: float) -> list:
+                         members: list, *, quantile: float,
+                         bounds: list | None = None) -> list:
     """The candidates whose removal would take away only what the other views already show:
     static content out of register (``FilterConfig.color_explained``).
 
@@ -262,14 +263,20 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
         reference colour is at most this quantile of the distances of its view's Gaussians
         outside every proposal region (those with a reference colour). A candidate without
         any such Gaussian, or in a view without any such static Gaussian, is not explained.
+    bounds : list of float or None, optional
+        Those quantiles per view where they were computed already
+        (``Refinement.color_bounds(quantile)``; None: from ``raw`` and ``distances`` here).
 
     Returns
     -------
     list of Candidate
         The explained ones, in order.
     """
-    static = static_mask(distances, raw)
-    bound = {}
+    if bounds is None:
+        static = static_mask(distances, raw)
+        bound = {}
+    else:
+        bound = dict(enumerate(bounds))
     out = []
     for c in candidates:
         d = distances[c.gaussians if c.expanded is None else c.expanded]
@@ -441,6 +448,10 @@ class Refinement:
         Per view, the margin of the last pass's depth test, widened by the view's depth noise
         with ``depth_scale_align`` (:func:`revealing_gaussians`; None with ``refine="none"``):
         what ``verify_hidden_widen`` reads.
+    color_bounds : callable or None
+        ``color_bounds(q)``: per view, the ``q`` quantile of the colour distances of its
+        Gaussians outside every proposal region (:func:`static_color_bounds`; with
+        ``color_distance``, else None), what ``color_explained`` compares with.
     """
 
     revealing: np.ndarray | None
@@ -449,6 +460,7 @@ class Refinement:
     expandable: np.ndarray | None = None
     margins: list | None = None
     unreliable_pixels: list | None = None
+    color_bounds: Callable | None = None
 
 
 def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
@@ -478,8 +490,8 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
     """
     config = state.config
     margins = [None] * state.num_views
-    revealing, distances, expandable, explained = _revealing(state, renders, images, raw,
-                                                             margins)
+    revealing, distances, expandable, explained, bounds = _revealing(state, renders, images,
+                                                                     raw, margins)
     front = unreliable = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
@@ -490,7 +502,7 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
             unreliable = [f | pixels_of(state.scene, state.index, v, explained)
                           for v, f in enumerate(front)]
     return Refinement(revealing, front, distances, expandable,
-                      None if revealing is None else margins, unreliable)
+                      None if revealing is None else margins, unreliable, bounds)
 
 
 def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
@@ -499,8 +511,9 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
     with ``color_explained``, ``silhouette_explained``, ``widened_band_color`` or
     ``expand_color_bound``, each Gaussian's colour distance to the last static reference; with
     ``expand_color=False`` or ``expand_color_bound``, those of the first the expansion may take
-    (``Refinement.expandable``; else None each). The last pass's margins go to ``margins`` (per
-    view)."""
+    (``Refinement.expandable``; else None each); with the distances, the per-view quantiles of
+    the static ones (``Refinement.color_bounds``, else None). The last pass's margins go to
+    ``margins`` (per view)."""
     config = state.config
     excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
@@ -509,9 +522,10 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                                         align_scale=config.depth_scale_align,
                                         scale_reach=config.depth_scale_reach,
                                         workers=config.num_threads, margins=margins)
-        return revealing, None, None, None  # no colour test: the expansion reads revealing
+        # No colour test: the expansion reads revealing.
+        return revealing, None, None, None, None
     if config.refine != "static-depth":
-        return None, None, None, None
+        return None, None, None, None, None
     proposed = state.mask(*raw)
     radii = config.refine_tolerance
     if radii == "auto":   # each view's measured misregistration with the others
@@ -565,7 +579,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         revealing &= ~explained
         if expandable is not None:
             expandable &= ~explained
-    return revealing, distances, expandable, explained
+    return revealing, distances, expandable, explained, bounds
 
 
 def _by_depth(config) -> bool:
