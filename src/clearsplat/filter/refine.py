@@ -11,7 +11,7 @@ distractor in front of view i's cannot hide it (:func:`static_reference`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -490,8 +490,8 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
     """
     config = state.config
     margins = [None] * state.num_views
-    revealing, distances, expandable, explained, bounds = _revealing(state, renders, images,
-                                                                     raw, margins)
+    found = _revealing(state, renders, images, raw, margins)
+    revealing, explained = found.revealing, found.explained
     front = unreliable = None
     if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
         front = [pixels_of(state.scene, state.index, v, revealing)
@@ -501,19 +501,28 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
             # The pixels of revealing | explained: those of either.
             unreliable = [f | pixels_of(state.scene, state.index, v, explained)
                           for v, f in enumerate(front)]
-    return Refinement(revealing, front, distances, expandable,
-                      None if revealing is None else margins, unreliable, bounds)
+    return Refinement(revealing, front, found.distances, found.expandable,
+                      None if revealing is None else margins, unreliable, found.bounds)
 
 
-def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
-    """(N,) bool: the Gaussians in front of the reference of ``config.refine``, less the
-    silhouettes it explains (``silhouette_explained``; those as the fourth item, else None);
-    with ``color_explained``, ``silhouette_explained``, ``widened_band_color`` or
-    ``expand_color_bound``, each Gaussian's colour distance to the last static reference; with
-    ``expand_color=False`` or ``expand_color_bound``, those of the first the expansion may take
-    (``Refinement.expandable``; else None each); with the distances, the per-view quantiles of
-    the static ones (``Refinement.color_bounds``, else None). The last pass's margins go to
-    ``margins`` (per view)."""
+class _Found(NamedTuple):
+    """What :func:`_revealing` finds (None: not computed under the config)."""
+
+    revealing: np.ndarray | None    # (N,) bool, in front of the reference
+    distances: np.ndarray | None = None     # Refinement.color_distance
+    expandable: np.ndarray | None = None    # Refinement.expandable
+    explained: np.ndarray | None = None     # (N,) bool, silhouettes taken out of revealing
+    bounds: Callable | None = None          # Refinement.color_bounds
+
+
+def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found:
+    """The Gaussians in front of the reference of ``config.refine``, less the silhouettes it
+    explains (``silhouette_explained``; those as ``explained``); with ``color_explained``,
+    ``silhouette_explained``, ``widened_band_color`` or ``expand_color_bound``, each
+    Gaussian's colour distance to the last static reference and the per-view quantiles of the
+    static ones; with ``expand_color=False`` or ``expand_color_bound``, those of the first the
+    expansion may take (``Refinement.expandable``). The last pass's margins go to ``margins``
+    (per view)."""
     config = state.config
     excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
@@ -522,10 +531,9 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
                                         align_scale=config.depth_scale_align,
                                         scale_reach=config.depth_scale_reach,
                                         workers=config.num_threads, margins=margins)
-        # No colour test: the expansion reads revealing.
-        return revealing, None, None, None, None
+        return _Found(revealing)    # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
-        return None, None, None, None, None
+        return _Found(None)
     proposed = state.mask(*raw)
     radii = config.refine_tolerance
     if radii == "auto":   # each view's measured misregistration with the others
@@ -579,7 +587,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> tuple:
         revealing &= ~explained
         if expandable is not None:
             expandable &= ~explained
-    return revealing, distances, expandable, explained, bounds
+    return _Found(revealing, distances, expandable, explained, bounds)
 
 
 def _by_depth(config) -> bool:
