@@ -801,6 +801,16 @@ def test_removal_ids_from_indices_and_masks_agree(world):
             mask[idx] = True
             np.testing.assert_array_equal(view.tiles_touched(idx), view.tiles_touched(mask))
             np.testing.assert_array_equal(view._ids(idx, "x"), view._ids(mask, "x"))
+        seen = view.visible.astype(np.int64)
+        for idx in (np.empty(0, np.int64), seen[:1], seen[[3, 3]], seen[[9, 2, 9, 2]]):
+            mask = np.zeros(len(scene), bool)
+            mask[idx] = True
+            got = view._ids(idx, "x")
+            assert got.dtype == np.int32
+            np.testing.assert_array_equal(got, view._ids(mask, "x"))
+            # A visible id is a Gaussian's position among the visible ones.
+            want = np.unique([int(np.flatnonzero(seen == i)[0]) for i in idx]).astype(np.int32)
+            np.testing.assert_array_equal(got, want)
         assert len(view._by_index) == (1 if share > 0.5 else 2)
 
 

@@ -153,10 +153,15 @@ class PreparedView(_TiledView):
             by_index, ids_by_index = self._by_index
             if by_index.size == 0:
                 return np.empty(0, dtype=np.int32)
-            at = np.minimum(np.searchsorted(by_index, idx), by_index.size - 1)
+            # Queried in the map's own dtype: a wider one would copy the map on every call.
+            at = np.minimum(np.searchsorted(by_index, idx.astype(by_index.dtype)),
+                            by_index.size - 1)
             ids = ids_by_index[at[by_index[at] == idx]]
-        if ids.size < 4096:
-            return np.unique(ids).astype(np.int32)
+        if ids.size < 4096:     # a sort and one comparison: np.unique costs more when small
+            ids = np.sort(ids)
+            if ids.size > 1:
+                ids = ids[np.concatenate(([True], ids[1:] != ids[:-1]))]
+            return ids.astype(np.int32)
         flags = np.zeros(self.num_visible, dtype=bool)   # a scatter beats sorting large sets
         flags[ids] = True
         return np.flatnonzero(flags).astype(np.int32)
