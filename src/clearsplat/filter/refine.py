@@ -275,8 +275,8 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
     if bounds is None:
         static = static_mask(distances, raw)
         bound = {}
-    else:
-        bound = dict(enumerate(bounds))
+    else:       # a view past the list's end judges nothing
+        bound = {v: bounds[v] if v < len(bounds) else None for v in range(len(members))}
     out = []
     for c in candidates:
         d = distances[c.gaussians if c.expanded is None else c.expanded]
