@@ -273,23 +273,17 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
         The explained ones, in order.
     """
     if bounds is None:
-        static = static_mask(distances, raw)
-        bound = {}
-    else:       # a view past the list's end judges nothing
-        bound = {v: bounds[v] if v < len(bounds) else None for v in range(len(members))}
+        bounds = static_color_bounds(distances, static_mask(distances, raw), members)(quantile)
     out = []
     for c in candidates:
         d = distances[c.gaussians if c.expanded is None else c.expanded]
         d = d[np.isfinite(d)]
-        if d.size == 0:
-            continue
-        if c.view not in bound:
-            bound[c.view] = static_color_bound(distances, static, members[c.view], quantile)
-        if bound[c.view] is None:
+        bound = bounds[c.view] if c.view < len(bounds) else None    # past the end: none
+        if d.size == 0 or bound is None:
             continue
         median = float(np.median(d))
-        c.scores["color"], c.scores["color_bound"] = median, bound[c.view]
-        if median <= bound[c.view]:
+        c.scores["color"], c.scores["color_bound"] = median, bound
+        if median <= bound:
             out.append(c)
     return out
 
