@@ -65,9 +65,9 @@ def test_output_does_not_depend_on_the_view_budget(street, extractor, rounds):
     assert b.stats["views_peak_bytes"] < a.stats["views_peak_bytes"]
 
 
-def test_prepared_views_make_room_before_preparing():
-    """The kept views and the one being prepared stay within the budget together: room for a
-    view as large as the largest so far is made first."""
+def _fake_views(budget):
+    """A view set of 4 cameras whose views hold 100 bytes each, and the list of the views it
+    prepares, in order."""
     class Fake:
         memory_bytes = 100
         visible = np.arange(3)
@@ -78,7 +78,13 @@ def test_prepared_views_make_room_before_preparing():
         made.append(i)
         return Fake()
 
-    views = PreparedViews(8, [None] * 4, make, budget=250)
+    return PreparedViews(8, [None] * 4, make, budget=budget), made
+
+
+def test_prepared_views_make_room_before_preparing():
+    """The kept views and the one being prepared stay within the budget together: room for a
+    view as large as the largest so far is made first."""
+    views, made = _fake_views(250)
     for _ in range(2):
         for i in range(4):
             views[i]
@@ -86,7 +92,7 @@ def test_prepared_views_make_room_before_preparing():
     # Room for two views and the one being prepared: 0 stays, the second slot turns over.
     assert made == [0, 1, 2, 3, 1, 2, 3]
     assert views.peak_bytes == 200
-    unlimited = PreparedViews(8, [None] * 4, make, budget=None)
+    unlimited, _ = _fake_views(None)
     for i in range(4):
         unlimited[i]
     assert unlimited.peak_bytes == 400
@@ -165,3 +171,71 @@ def test_kept_gaussians_read_as_the_subset(street):
     np.testing.assert_array_equal(light.view_id, full.view_id)
     np.testing.assert_array_equal(light.pixel_id, full.pixel_id)
     assert light.gaussians.sh_degree == full.gaussians.sh_degree and not light.gaussians.extra
+
+
+def test_make_room_and_hand_on():
+    views, made = _fake_views(400)
+    for i in range(4):
+        views[i]
+    views.make_room(150)        # the most recently prepared go first: 3, then 2
+    assert sorted(views._kept) == [0, 1] and views.held_bytes == 200
+    views.hand_on()             # the views stay for the next round to take; nothing else
+    assert views.take(1) is not None and views.take(3) is None
+    with pytest.raises(RuntimeError, match="released"):
+        views[3]
+    with pytest.raises(RuntimeError, match="never prepared|released"):
+        views.sees_any(0, np.arange(2))
+    assert made == [0, 1, 2, 3]
+
+
+def test_held_bytes_counts_what_a_later_round_keeps_alive(street, extractor):
+    from clearsplat.filter.rounds import held_bytes, kept_scene
+    r = filter_distractors(street, config=FilterConfig(rounds=1), extractor=extractor)
+    kept = np.flatnonzero(r.keep)
+    light, full = kept_scene(street, kept, light=True), kept_scene(street, kept)
+    result = (r.keep.nbytes
+              + sum(a.nbytes for p in r.proposals for a in vars(p).values()
+                    if isinstance(a, np.ndarray))
+              + sum(c.gaussians.nbytes + c.expanded.nbytes for c in r.candidates))
+    ids = light.view_id.nbytes + light.pixel_id.nbytes
+    g = light.gaussians
+    assert held_bytes(r, light) == result + ids + g.means.nbytes + g.opacities.nbytes
+    shapes = sum(getattr(full.gaussians, k).nbytes for k in ("scales", "quats", "sh"))
+    assert held_bytes(r, full) == held_bytes(r, light) + shapes
+    shown = [np.zeros((4, 5), bool), None]
+    assert held_bytes(r, light, kept, shown, None) == held_bytes(r, light) + kept.nbytes + 20
+
+
+def test_later_round_views_leave_room_for_what_stays_held(street, extractor, monkeypatch):
+    """A later round's views get the budget less Carry.reserve, and the views handed on are
+    trimmed to it first; the output stays that of an unlimited budget."""
+    from clearsplat.filter import backend as backend_module
+    from clearsplat.filter import pipeline
+    budgets, reserves, rooms = [], [], []
+
+    class Recording(PreparedViews):
+        def __init__(self, *args, budget, **kwargs):
+            budgets.append(budget)
+            super().__init__(*args, budget=budget, **kwargs)
+
+        def make_room(self, nbytes):
+            rooms.append(nbytes)
+            super().make_room(nbytes)
+
+    held = pipeline.held_bytes
+
+    def recording_held(*args):
+        reserves.append(held(*args))
+        return reserves[-1]
+
+    monkeypatch.setattr(backend_module, "PreparedViews", Recording)
+    monkeypatch.setattr(pipeline, "held_bytes", recording_held)
+    budget = 3 * prepare(street, street.cameras[0]).memory_bytes
+    cfg = FilterConfig(view_memory=budget / 1e9, rounds=2)
+    a = filter_distractors(street, config=cfg, extractor=extractor)
+    assert max(c.round for c in a.candidates) == 2
+    assert len(reserves) == 1 and reserves[0] > 0 and rooms == reserves
+    assert budgets == [budget, max(budget - reserves[0], 0)]
+    monkeypatch.undo()
+    _same(a, filter_distractors(street, config=cfg.replace(view_memory=None),
+                                extractor=extractor))

@@ -130,7 +130,13 @@ class NativeBackend(FilterBackend):
             return prepare(scene, scene.cameras[i], keep=held_mask(scene, hoods, i, index),
                            num_threads=threads)
 
-        views = PreparedViews(len(scene), scene.cameras, make, budget=self.budget,
+        budget = self.budget
+        if budget is not None and previous is not None:
+            # Room for what stays held while this round runs (Carry.reserve), from the views
+            # handed on as well.
+            budget = max(budget - previous.reserve, 0)
+            previous.views.make_room(previous.reserve)
+        views = PreparedViews(len(scene), scene.cameras, make, budget=budget,
                               skip_unseen=self.incremental)
         return views, touched
 

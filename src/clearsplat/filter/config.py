@@ -227,7 +227,9 @@ class FilterConfig:
     view_memory : float or None
         GB the prepared input views may hold at once on the CPU (about 60 bytes per Gaussian
         each camera sees); views beyond it are prepared again when read, which costs time but
-        never changes the output. None: no limit.
+        never changes the output. A later round (``rounds``) gives its views this less what
+        stays held while it runs (the result of the rounds before, its copy of the kept
+        Gaussians), so that it peaks about where the first does. None: no limit.
     prune_views : bool
         Once the proposals are known, keep of each prepared input view (CPU) only the tile-list
         entries that a later render can reach: every later render of that camera keeps all

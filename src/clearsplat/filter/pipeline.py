@@ -38,7 +38,7 @@ from .refine import explained_candidates, refine, removed_pixels
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
 from .robust import aligned_images
-from .rounds import Carry, in_round, kept_scene, merge_round
+from .rounds import Carry, held_bytes, in_round, kept_scene, merge_round
 from .state import Progress, RoundState
 from .verify import (individual_tests, make_verifier, range_masks, second_range_tests,
                      seen_by_verifiers)
@@ -108,13 +108,17 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                 break
             previous, carry = carry, None
             light = previous is not None    # views made afresh come from the whole scene
-            if light:
-                previous.source = (scene, result.keep.copy())
             # Pixels whose input image shows a distractor removed so far (verify_mask_removed).
             shown = removed_pixels(scene, ~result.keep) if config.verify_mask_removed else None
-            later, carry = run_round(kept_scene(scene, kept, light=light), config, extractor,
-                                     backend, in_round(report, round_), previous=previous,
+            subset = kept_scene(scene, kept, light=light)
+            if light:
+                previous.source = (scene, result.keep.copy())
+                # The round's views leave room for what stays held while it runs.
+                previous.reserve = held_bytes(result, subset, kept, shown, previous.source[1])
+            later, carry = run_round(subset, config, extractor, backend,
+                                     in_round(report, round_), previous=previous,
                                      hold=round_ < rounds, plan=plan, removed=shown)
+            subset = None               # not held beside the next round's
             previous = None             # spent (the round released it)
             merge_round(result, later, kept, round_)
             if later.keep.all():        # nothing new: a further round would find the same
@@ -239,6 +243,7 @@ def _finish(state: RoundState, keep, candidates, proposals, renders, touched: di
         reveal = (None if renders.reveal is None else
                   list(zip(renders.reveal, renders.reveal_valid, renders.reveal_plan)))
         carry = Carry(views, renders.full, renders.excl, keep, reveal=reveal)
+        views.hand_on()
     else:
         views.release()
     timings = state.clock.timings

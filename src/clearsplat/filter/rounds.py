@@ -18,7 +18,7 @@ import numpy as np
 from ..scene import Gaussians, Scene
 from .result import FilterResult
 
-__all__ = ["Carry", "KeptGaussians", "in_round", "kept_scene", "merge_round"]
+__all__ = ["Carry", "KeptGaussians", "held_bytes", "in_round", "kept_scene", "merge_round"]
 
 
 @dataclass
@@ -33,7 +33,11 @@ class Carry:
     ``source``: the whole scene of the first round and the (N0,) bool mask of the Gaussians
     the next round runs on, where that round's scene is :func:`kept_scene` with ``light``: the
     native backend then projects the views it prepares afresh from the whole scene and
-    restricts them (``PreparedView.restrict``), the same arrays bit for bit."""
+    restricts them (``PreparedView.restrict``), the same arrays bit for bit.
+
+    ``reserve``: bytes that the rounds before hold besides what they hand on, for as long as
+    the next round runs (:func:`held_bytes`); the next round's views leave room for them
+    within ``FilterConfig.view_memory``."""
 
     views: object
     full: list
@@ -41,6 +45,7 @@ class Carry:
     keep: np.ndarray
     source: tuple | None = None
     reveal: list | None = None
+    reserve: int = 0
 
     def nbytes(self) -> int:
         """Bytes held: the views still kept and the renders not yet dropped."""
@@ -91,6 +96,26 @@ def kept_scene(scene: Scene, kept: np.ndarray, *, light: bool = False) -> Scene:
                  else replace(g, extra={}).subset(kept))      # replace shares the arrays
     return Scene(gaussians, scene.view_id[kept], scene.pixel_id[kept], scene.cameras,
                  scene.images, scene.render_settings)
+
+
+def held_bytes(result: FilterResult, scene: Scene, *others) -> int:
+    """Bytes that stay held while a later round runs on ``scene`` besides its views and
+    renders: the result of the rounds before (its keep mask, the arrays of its proposals and
+    candidates), the arrays ``scene`` holds of its own (a kept scene's copies: not the shapes
+    and colours :class:`KeptGaussians` gathers when read) and ``others`` (arrays, lists of
+    arrays or None)."""
+    g = scene.gaussians
+    own = [g.means, g.opacities, scene.view_id, scene.pixel_id]
+    if not isinstance(g, KeptGaussians):
+        own += [g.scales, g.quats, g.sh]
+    arrays = [result.keep, *own]
+    for p in result.proposals:
+        arrays += [a for a in vars(p).values() if isinstance(a, np.ndarray)]
+    for c in result.candidates:
+        arrays += [c.gaussians, c.expanded]
+    for o in others:
+        arrays += o if isinstance(o, list) else [o]
+    return int(sum(a.nbytes for a in arrays if isinstance(a, np.ndarray)))
 
 
 def in_round(report, round_: int):

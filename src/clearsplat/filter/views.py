@@ -142,6 +142,18 @@ class PreparedViews:
             self._kept[i] = self._pruned(i, self._kept[i])
         self.pruned_bytes = self.held_bytes
 
+    def make_room(self, nbytes: int) -> None:
+        """Drop the most recently prepared views until those kept and ``nbytes`` more fit the
+        budget."""
+        self._fit(None, incoming=nbytes)
+
+    def hand_on(self) -> None:
+        """Keep the views held now for the next round to :meth:`take`, and drop what only this
+        round reads: the visibility bits and what prepares a view (with the round state it
+        holds)."""
+        self._seen = [None] * len(self.cameras)
+        self._make = None
+
     def take(self, i: int):
         """View ``i`` if it is held, no longer held here (None otherwise)."""
         return self._kept.pop(i, None)
