@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import resource
 import statistics
 import subprocess
 import sys
@@ -29,14 +28,18 @@ import time
 
 
 def _timed(cmd: list, env: dict) -> tuple[float, float, float]:
-    """Wall seconds, CPU seconds (all threads) and peak RSS (GB) of one child process."""
-    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    """Wall seconds, CPU seconds (all threads) and peak RSS (GB) of one child process, from
+    that child's own resource usage (``RUSAGE_CHILDREN`` would also hold whatever this
+    process inherited, e.g. from a shell that ran a larger command before it)."""
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    child = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - t0
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
-    return wall, cpu, max(r1.ru_maxrss, r0.ru_maxrss) / 2**20
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode:
+        raise subprocess.CalledProcessError(child.returncode, cmd)
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 2**20
 
 
 def main(argv=None) -> int:
