@@ -235,7 +235,8 @@ def test_later_round_views_leave_room_for_what_stays_held(street, extractor, mon
     a = filter_distractors(street, config=cfg, extractor=extractor)
     assert max(c.round for c in a.candidates) == 2
     assert len(reserves) == 1 and reserves[0] > 0 and rooms == reserves
-    assert budgets == [budget, max(budget - reserves[0], 0)]
+    assert len(budgets) == 2 and abs(budgets[0] - budget) <= 1     # GB and back
+    assert budgets[1] == max(budgets[0] - reserves[0], 0)
     monkeypatch.undo()
     _same(a, filter_distractors(street, config=cfg.replace(view_memory=None),
                                 extractor=extractor))
