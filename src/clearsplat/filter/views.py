@@ -164,8 +164,7 @@ class PreparedViews:
         or :meth:`sees` any more."""
         self._kept.clear()
         if bits:
-            self._seen = [None] * len(self.cameras)
-            self._make = None
+            self.hand_on()      # nothing is left to hand on
 
     def sees(self, j: int, gaussians) -> bool:
         """Whether view ``j`` can be changed by removing ``gaussians`` (int indices or (N,)
