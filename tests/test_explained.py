@@ -148,8 +148,8 @@ def test_explained_candidates_compare_with_the_views_unproposed_gaussians():
                                 bounds=[1.0, 0.0]) == [a, b]
     assert explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.9,
                                 bounds=[None, 1.0]) == [c]
-    assert explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.9,
-                                bounds=[1.0]) == [a, b]
+    with pytest.raises(ValueError, match="1 bounds for 2 views"):     # one bound per view
+        explained_candidates([a, b, c], raw, d, _members(view_id), quantile=0.9, bounds=[1.0])
 
 
 def test_a_candidate_is_judged_on_what_it_removes():

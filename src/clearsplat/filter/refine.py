@@ -264,8 +264,9 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
         outside every proposal region (those with a reference colour). A candidate without
         any such Gaussian, or in a view without any such static Gaussian, is not explained.
     bounds : list of float or None, optional
-        Those quantiles per view where they were computed already
-        (``Refinement.color_bounds(quantile)``; None: from ``raw`` and ``distances`` here).
+        Those quantiles, one per view (None: that view judges nothing), where they were
+        computed already (``Refinement.color_bounds(quantile)``; None: from ``raw`` and
+        ``distances`` here).
 
     Returns
     -------
@@ -274,11 +275,13 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
     """
     if bounds is None:
         bounds = static_color_bounds(distances, static_mask(distances, raw), members)(quantile)
+    elif len(bounds) != len(members):
+        raise ValueError(f"explained_candidates: {len(bounds)} bounds for {len(members)} views")
     out = []
     for c in candidates:
         d = distances[c.gaussians if c.expanded is None else c.expanded]
         d = d[np.isfinite(d)]
-        bound = bounds[c.view] if c.view < len(bounds) else None    # past the end: none
+        bound = bounds[c.view]
         if d.size == 0 or bound is None:
             continue
         median = float(np.median(d))
