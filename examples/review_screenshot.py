@@ -8,22 +8,20 @@ It serves the demo scene with its filter output (:func:`clearsplat.viewer.serve`
 ``filtered=`` and ``select=``: the accepted candidate with the most Gaussians, unless
 ``--select`` names one), so the browser looks through that candidate's input view with its
 Gaussians in the highlight colour and the panel shows its crops; headless Chromium (software
-WebGL) photographs it.
+WebGL) photographs it once the highlight is drawn.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 import socket
-import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 import clearsplat
+from clearsplat.browser import HeadlessBrowser, find_browser
 from clearsplat.review import load_filter_output
 from clearsplat.viewer import SELECTED_COLOUR, serve
 
@@ -39,10 +37,10 @@ def main() -> None:
     p.add_argument("demo", help="the folder 'clearsplat demo --out' wrote")
     p.add_argument("--out", default="docs/images")
     p.add_argument("--select", type=int, help="the candidate to select")
-    p.add_argument("--wait", type=int, default=40, help="seconds of page time (default: 40)")
+    p.add_argument("--timeout", type=float, default=1800,
+                   help="seconds to wait for the page to draw (default: 1800)")
     args = p.parse_args()
-    browser = shutil.which("chromium") or shutil.which("google-chrome")
-    if browser is None:
+    if find_browser() is None:
         raise SystemExit("needs Chromium (Debian: apt-get install chromium)")
     demo, out = Path(args.demo), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -53,26 +51,22 @@ def main() -> None:
         k = max(np.flatnonzero(output.accepted), key=lambda k: output.sets.removal(k).size)
     viewer = serve(scene, filtered=demo / "filtered", port=free_port(), select=int(k))
     target = np.array(SELECTED_COLOUR) * 255
+
+    def drawn(rgb) -> bool:             # the highlight, and the scene around it (not the panel)
+        rgb = rgb[:, :700].astype(int)
+        green = ((rgb[..., 1] > 80) & (rgb[..., 0] < 0.5 * rgb[..., 1])
+                 & (rgb[..., 2] < 0.6 * rgb[..., 1]))
+        return green.mean() > 0.002 and (rgb.max(-1) > 40).mean() > 0.3
+
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            raw = Path(tmp) / "review.png"
-            for budget in (1000 * args.wait, 2000 * args.wait, 4000 * args.wait):
-                subprocess.run([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
-                                "--enable-unsafe-swiftshader", "--hide-scrollbars",
-                                f"--user-data-dir={tmp}/profile", "--window-size=1200,900",
-                                f"--virtual-time-budget={budget}", f"--screenshot={raw}",
-                                viewer.url], check=True, capture_output=True, timeout=600)
-                with Image.open(raw) as im:
-                    rgb = np.asarray(im.convert("RGB")).astype(int)[:, :700]   # not the panel
-                green = ((rgb[..., 1] > 80) & (rgb[..., 0] < 0.5 * rgb[..., 1])
-                         & (rgb[..., 2] < 0.6 * rgb[..., 1]))
-                if green.mean() > 0.002 and (rgb.max(-1) > 40).mean() > 0.3:
-                    break
-            with Image.open(raw) as im:
-                im = im.convert("RGB").crop((0, 160, 1200, 900))
-                im = im.resize((900, round(im.height * 900 / im.width)), Image.LANCZOS)
-                im.quantize(256, method=Image.Quantize.MEDIANCUT).save(
-                    out / "viewer_review.png", optimize=True)
+        with HeadlessBrowser(size=(1200, 900)) as browser:
+            browser.open(viewer.url)
+            rgb = browser.wait_until(drawn, what=f"candidate {k} in the highlight colour",
+                                     timeout=args.timeout)
+        im = Image.fromarray(rgb).crop((0, 160, 1200, 900))
+        im = im.resize((900, round(im.height * 900 / im.width)), Image.LANCZOS)
+        im.quantize(256, method=Image.Quantize.MEDIANCUT).save(
+            out / "viewer_review.png", optimize=True)
     finally:
         viewer.stop()
     print(f"wrote {out}/viewer_review.png (candidate {k}, view {int(output.sets.view[k])}; "

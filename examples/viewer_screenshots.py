@@ -13,7 +13,6 @@ WebGL, no GPU needed) and writes small PNGs; then it takes one frame of ``report
 from __future__ import annotations
 
 import argparse
-import shutil
 import socket
 import subprocess
 import tempfile
@@ -23,6 +22,7 @@ import numpy as np
 from PIL import Image
 
 import clearsplat
+from clearsplat.browser import HeadlessBrowser
 from clearsplat.viewer import serve
 
 
@@ -32,16 +32,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def screenshot(url: str, out: Path, *, size=(1000, 640), budget_ms: int = 30000) -> None:
-    browser = shutil.which("chromium") or shutil.which("google-chrome")
-    if browser is None:
-        raise SystemExit("needs Chromium (Debian: apt-get install chromium)")
-    with tempfile.TemporaryDirectory() as profile:
-        subprocess.run([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
-                        "--enable-unsafe-swiftshader", "--hide-scrollbars",
-                        f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}",
-                        f"--virtual-time-budget={budget_ms}", f"--screenshot={out}", url],
-                       check=True, capture_output=True, timeout=600)
+def drawn(rgb) -> bool:
+    """Some of the scene is lit, and the page is not viser's white page of a client loading."""
+    return (rgb.max(-1) > 40).mean() > 0.05 and (rgb.min(-1) > 230).mean() < 0.5
 
 
 def small_png(src: Path, dest: Path, *, box=None, width: int = 640) -> None:
@@ -59,25 +52,24 @@ def main() -> None:
     p.add_argument("demo", help="the folder 'clearsplat demo --out' wrote")
     p.add_argument("--out", default="docs/images")
     p.add_argument("--modes", default="original,filtered,removed")
-    p.add_argument("--wait", type=int, default=30,
-                   help="seconds of page time before the first screenshot (default: 30)")
+    p.add_argument("--timeout", type=float, default=1800,
+                   help="seconds to wait for each page to draw (default: 1800)")
     args = p.parse_args()
     demo, out = Path(args.demo), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scene = clearsplat.load_scene(demo / "scene")
     keep = ~np.load(demo / "filtered" / "removed.npy")
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, HeadlessBrowser(size=(1000, 640)) as browser:
         for mode in args.modes.split(","):
             viewer = serve(scene, keep=keep, port=free_port(), show=mode)
             raw = Path(tmp) / f"{mode}.png"
             try:
-                # software WebGL is slow with a million Gaussians: wait longer until they show
-                for budget in (1000 * args.wait, 2000 * args.wait, 4000 * args.wait):
-                    screenshot(viewer.url, raw, budget_ms=budget)
-                    with Image.open(raw) as im:
-                        lit = (np.asarray(im.convert("L"))[160:] > 40).mean()
-                    if lit > 0.05:
-                        break
+                # software WebGL is slow with a million Gaussians: photograph the page until
+                # they show (below the browser's notice) and it has stopped changing
+                browser.open(viewer.url)
+                rgb = browser.wait_until(lambda rgb: drawn(rgb[160:]), what=f"the {mode} "
+                                         "Gaussians", timeout=args.timeout)
+                Image.fromarray(rgb).save(raw)
             finally:
                 viewer.stop()
             # below the browser's "software WebGL" notice, the viewer's panel kept
