@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/filter_identity.py --save ref/      # record today's outputs
     python benchmarks/filter_identity.py --check ref/     # after a change: compare
-    python benchmarks/filter_identity.py --check ref/ --set prune_views=true   # an option
+    python benchmarks/filter_identity.py --check ref/ --set view_memory=0.5   # an option
     python benchmarks/filter_identity.py --check ref/ --ignore expanded_gaussians
 
 Runs ``filter_distractors`` on the stand-in scenes (object and street, 4, 8 and 16 views, at
@@ -114,9 +114,11 @@ def main(argv=None) -> int:
                 print(f"{name} {c}: no reference")
                 continue
             # Options added since the reference was saved (performance settings that do not
-            # change the output) are not compared.
-            for key in set(got[c]["summary"]["config"]) - set(want[c]["summary"]["config"]):
-                got[c]["summary"]["config"].pop(key)
+            # change the output) or removed since are not compared: only those both configs have.
+            got_config, want_config = got[c]["summary"]["config"], want[c]["summary"]["config"]
+            for key in set(got_config) ^ set(want_config):
+                got_config.pop(key, None)
+                want_config.pop(key, None)
             for item in args.set:   # the options set here are not compared on either side
                 want[c]["summary"]["config"].pop(item.partition("=")[0], None)
             # Likewise fields added to the candidates' records (the round that found them).

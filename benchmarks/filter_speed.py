@@ -128,7 +128,6 @@ def _case(views: int, height: int, width: int, repeats: int, full_repeats: int,
         "views_derived": inc[0]["stats"].get("views_derived", 0),
         "views_skipped": inc[0]["stats"].get("views_skipped", 0),
         "views_peak_gb": inc[0]["stats"].get("views_peak_bytes", 0) / 1e9,
-        "views_pruned_gb": inc[0]["stats"].get("views_pruned_bytes", 0) / 1e9,
         "proposed_share": inc[0]["proposed"],
         "view_memory": view_memory,
         "memory_estimate_gb": estimate_filter_memory(
@@ -162,7 +161,7 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default="default",
                    help="the FilterConfig preset every run starts from (default: default)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="a FilterConfig field for every run, VALUE as in `clearsplat bench --config` (e.g. prune_views=false)")
+                   help="a FilterConfig field for every run, VALUE as in `clearsplat bench --config` (e.g. backend=torch)")
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -214,14 +213,14 @@ def main(argv=None) -> int:
               f"{str(r['identical_output']):>11}")
     base = next((r for r in rows if r["views"] == 8), rows[0])
     print(f"\n{'views':>5} {'CPU s':>7} {'x CPU':>6} {'x time':>7} {'x peak':>7} "
-          f"{'prepared':>9} {'derived':>8} {'skipped':>8} {'views GB':>9} {'pruned GB':>10} {'estimate GB':>12} "
+          f"{'prepared':>9} {'derived':>8} {'skipped':>8} {'views GB':>9} {'estimate GB':>12} "
           f"{'proposed':>9}   "
           f"(x: against {base['views']} views)")
     for r in rows:
         print(f"{r['views']:>5} {r['cpu_s']:>7.2f} {r['cpu_s'] / base['cpu_s']:>6.2f} "
               f"{r['total_s'] / base['total_s']:>7.2f} "
               f"{r['peak_rss_gb'] / base['peak_rss_gb']:>7.2f} {r['views_prepared']:>9} "
-              f"{r.get('views_derived', 0):>8} {r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} {r['views_pruned_gb']:>10.2f} "
+              f"{r.get('views_derived', 0):>8} {r['views_skipped']:>8} {r['views_peak_gb']:>9.2f} "
               f"{r['memory_estimate_gb']:>12.2f} {100 * r.get('proposed_share', 0.0):>8.1f}%"
               + (f"   GPU peak {r['gpu_peak_gb']:.2f} GB" if r.get("gpu_peak_gb") else ""))
     steps = list(dict.fromkeys(k for r in rows for k in r["steps"]))

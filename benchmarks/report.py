@@ -542,8 +542,7 @@ view is compared with its reveal reference (per pixel, the 0.75 quantile of the 
 seven most co-visible views within 30 degrees, each rendered on its own), which outvotes the
 other views' passers-by; the `video` preset also leaves the frame on each side out
 (`leave_out=1`). Measurements: `docs/method.md`, "Dense captures", "`reveal_reference`" and
-"Video"; speed: the street rows of "Speed" above. `prune_views` never changes the output; it is
-off by default: on the stand-in dense captures the proposals cover about half of every image.
+"Video"; speed: the street rows of "Speed" above.
 """,
     "gpu": """## On a GPU
 
@@ -590,13 +589,11 @@ on the device, not a faster card.
 the GPU exactly as on CPU tensors. At 8 views and 256x448 that rounding flips a few decisions,
 on CPU tensors too: the support condition compares patch mean depths before and after the
 exclusion, and about a third of each view's patches differ by less than 1e-5 of their depth,
-where rounding decides (`python benchmarks/support_rounding.py`). With `support_margin=1e-4`,
-which asks for a surface farther by more than rounding (`docs/method.md`), the backend makes
-the native decisions on that scene exactly, on the H200 (17,666 removed by both: `python
-benchmarks/gpu_decisions.py --views 8 --set backend=torch --set support_margin=0.0001`) as on
-CPU tensors (`--device cpu`). So did a dense street, with neighbours, the reveal reference and
-the static verification base (the same script with `--views 24 --family street --resolution
-128x224 --set verify_base=static`: 24,859 removed, 18.3 s against 4.9 s natively). The CUDA
+where rounding decides (`python benchmarks/support_rounding.py`). A dense street, with
+neighbours, the reveal reference and the static verification base, got the native decisions
+exactly (`python benchmarks/gpu_decisions.py --views 24 --family street --resolution 128x224
+--set backend=torch --set verify_base=static`: 24,859 removed, 18.3 s against 4.9 s
+natively). The CUDA
 tests (`python -m pytest tests/test_torch_backend.py -k cuda`: renders against the native
 rasterizer and the reference, the filter's decisions at 4 and 8 views on the tests' small
 scenes, the keep mask on the device, the CLI) passed there: 10 passed.

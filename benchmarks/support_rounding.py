@@ -1,15 +1,13 @@
-"""How much of the support condition rounding decides, and what ``support_margin`` changes.
+"""How much of the support condition rounding decides.
 
 Usage::
 
     python benchmarks/support_rounding.py [--views 8] [--resolution 256x448] [--family object]
-                                          [--margins 0,0.0001,0.01]
 
 One stand-in scene (seed 0). Per view, from the first round's R_i and R_i^-i: the patches whose
 mean depths before and after the exclusion differ by less than 1e-5 of the depth (where rounding
-decides the strict comparison), and how many of those the strict comparison passes. Then the
-filter once per margin: supported patches (of the first round), candidates, accepted candidates and
-removed Gaussians. Counts only: the same on any machine.
+decides the strict comparison), and how many of those the strict comparison passes. Counts only:
+the same on any machine.
 """
 
 from __future__ import annotations
@@ -24,12 +22,10 @@ def main(argv=None) -> int:
     p.add_argument("--views", type=int, default=8)
     p.add_argument("--resolution", default="256x448", help="HxW")
     p.add_argument("--family", default="object")
-    p.add_argument("--margins", default="0,0.0001,0.01")
     args = p.parse_args(argv)
 
     from clearsplat.features import get_extractor
     from clearsplat.features.base import grid_shape_for
-    from clearsplat.filter import FilterConfig, filter_distractors
     from clearsplat.filter.proposal import cell_index_map, patch_means
     from clearsplat.render import prepare
     from clearsplat.synth import make_world, reconstruct
@@ -51,12 +47,6 @@ def main(argv=None) -> int:
         after, _ = patch_means(pair[1].depth, cells, n, both)
         near = (count > 0) & (np.abs(after - before) < 1e-5 * np.maximum(before, after))
         print(f"{i:>4} {int(near.sum()):>10} {int((near & (before < after)).sum()):>7}")
-    print(f"\n{'margin':>8} {'supported':>10} {'candidates':>11} {'accepted':>9} {'removed':>9}")
-    for m in (float(x) for x in args.margins.split(",")):
-        r = filter_distractors(scene, config=FilterConfig(support_margin=m), extractor=extractor)
-        print(f"{m:>8g} {sum(int(q.support.sum()) for q in r.proposals):>10,} "
-              f"{len(r.candidates):>11,} {sum(c.accepted for c in r.candidates):>9,} "
-              f"{int(r.removed.sum()):>9,}")
     return 0
 
 

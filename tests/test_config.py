@@ -135,7 +135,7 @@ def test_spec_descriptions():
     assert FIELD_SPECS["num_threads"].allowed() == "an integer >= 1 or None"
     assert FIELD_SPECS["verify"].allowed() == "true or false"
     assert FIELD_SPECS["refine"].allowed() == "one of 'static-depth', 'depth', 'none'"
-    assert FIELD_SPECS["min_score"].allowed() == "a finite number"
+    assert FieldSpec("number").allowed() == "a finite number"
 
 
 def test_paper_preset_without_dino_says_what_to_do_in_python(monkeypatch):

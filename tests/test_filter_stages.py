@@ -54,25 +54,23 @@ def test_support_averages_over_pixels_valid_in_both():
     assert support_condition(alpha, z_full, z_excl, (1, 1), eta=0.5)[0, 0]
 
 
-def test_support_margin_asks_for_a_surface_farther_by_that_share():
+def test_support_is_the_strict_comparison_of_the_patch_mean_depths():
     rng = np.random.default_rng(3)
     h, w = 48, 64                                  # a 3x4 grid of 16-px cells
     alpha = np.ones((h, w), np.float32)
     z_full = rng.uniform(1.0, 8.0, (h, w))
     cells = cell_index_map((3, 4), h, w)
     # Each cell's exclusion render is its full render scaled by 1 + r: the patch means keep the
-    # ratio, so the closed form is r > margin (and r > 0 at margin 0, the strict comparison).
+    # ratio, so the closed form is r > 0.
     r = np.array([-1e-3, 0.0, 2e-7, 5e-5, 2e-4, 9e-4, 1.1e-3, 5e-3, 9e-3, 1.1e-2, 0.05, 0.3])
     z_excl = z_full * (1.0 + r[cells])
-    for margin in (0.0, 1e-4, 1e-3, 1e-2):
-        g = support_condition(alpha, z_full, z_excl, (3, 4), eta=0.5, margin=margin)
-        assert g.ravel().tolist() == (r > margin).tolist(), margin
-    # Margin 0 is the strict comparison of the patch means, bit for bit.
+    g = support_condition(alpha, z_full, z_excl, (3, 4), eta=0.5)
+    assert g.ravel().tolist() == (r > 0).tolist()
+    # The strict comparison of the patch means, bit for bit.
     z_excl = z_full.copy()
     z_excl[:16, :16] = np.nextafter(z_full[:16, :16], np.inf)
     g = support_condition(alpha, z_full, z_excl, (3, 4), eta=0.5)
     assert g.ravel().tolist() == [True] + [False] * 11
-    assert not support_condition(alpha, z_full, z_excl, (3, 4), eta=0.5, margin=1e-4).any()
 
 
 def test_ranges_are_split_at_tau1_and_tau2():

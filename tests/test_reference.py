@@ -68,7 +68,7 @@ def test_every_command_and_argument_is_documented(page):
 def test_a_field_without_a_docstring_entry_stops_the_script(gen, monkeypatch):
     doc = FilterConfig.__doc__
     start = doc.index("    eta : float")
-    end = doc.index("    support_margin : float")
+    end = doc.index("    num_verify_views : int")
     monkeypatch.setattr(FilterConfig, "__doc__", doc[:start] + doc[end:])
     with pytest.raises(SystemExit, match=r"without a docstring entry \['eta'\]"):
         gen.generate()

@@ -11,30 +11,13 @@ from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.association import ViewIndex
 from clearsplat.filter.refine import revealing_gaussians
-from clearsplat.filter.robust import (photometric_alignment, tolerant_images, tolerant_reference,
-                                      view_depth_scales)
+from clearsplat.filter.robust import tolerant_reference, view_depth_scales
 from clearsplat.filter.verify import Partial, change_weighted_terms
 from clearsplat.synth import make_world
 from clearsplat.synth.realism import realistic_reconstruction
 
-NEW = dict(photometric_align=True, depth_scale_align=True, verify_tolerance=2,
-           refine_tolerance=2, min_relative_score=0.3, refine_passes=2, expand_connected=True,
-           refine_tolerance_depth=False, depth_scale_reach=3, rounds=2, edge_tolerance=2)
-
-
-def test_photometric_alignment_recovers_an_affine_map_despite_outliers():
-    rng = np.random.default_rng(0)
-    image = rng.uniform(0.1, 0.9, (40, 60, 3)).astype(np.float32)
-    a, b = np.array([1.1, 0.9, 1.05]), np.array([0.02, -0.03, 0.0])
-    render = (a * image + b).astype(np.float32)
-    render[:10, :20] = rng.uniform(0, 1, (10, 20, 3))        # a distractor: 8 % of the pixels
-    alpha = np.ones((40, 60), np.float32)
-    alpha[-5:] = 0.3                                          # not opaque: left out
-    render[-5:] = 0.0
-    out = photometric_alignment(image, render, alpha)
-    np.testing.assert_allclose(out, a * image + b, atol=2e-4)
-    # Too few opaque pixels: identity.
-    np.testing.assert_array_equal(photometric_alignment(image, render, alpha * 0), image)
+NEW = dict(depth_scale_align=True, refine_tolerance=2, min_relative_score=0.3, refine_passes=2,
+           expand_connected=True, refine_tolerance_depth=False, rounds=2)
 
 
 def test_view_depth_scales_is_the_median_ratio():
@@ -51,22 +34,18 @@ def test_view_depth_scales_is_the_median_ratio():
     assert got[2] == (1.0, 0.0)                                # too few pixels
 
 
-def test_tolerant_images_and_reference_against_brute_force():
+def test_tolerant_reference_against_brute_force():
     rng = np.random.default_rng(2)
-    img = rng.uniform(0, 1, (9, 11, 3)).astype(np.float32)
     depth = rng.uniform(1, 2, (9, 11))
     depth[3:5, 4:7] = 0
     depth[0, 0] = 0
     rgb = rng.uniform(0, 1, (9, 11, 3))
     rgb[6, 2] = np.nan
     r = 1
-    lo, hi = tolerant_images(img, r)
     (d,), (rlo,), (rhi,) = tolerant_reference([depth], [rgb], r)
     for y in range(9):
         for x in range(11):
             ys, xs = slice(max(y - r, 0), y + r + 1), slice(max(x - r, 0), x + r + 1)
-            np.testing.assert_array_equal(lo[y, x], img[ys, xs].reshape(-1, 3).min(0))
-            np.testing.assert_array_equal(hi[y, x], img[ys, xs].reshape(-1, 3).max(0))
             win = depth[ys, xs]
             assert d[y, x] == (win[win > 0].min() if (win > 0).any() else 0)
             if np.isnan(rgb[y, x]).any():
@@ -99,9 +78,9 @@ def test_tolerant_reference_takes_its_own_depth_radius():
     np.testing.assert_array_equal(two[1][1], tolerant_reference([depth], [rgb], 2)[1][0])
 
 
-def test_edge_tolerance_is_the_least_radius_in_colour_and_depth():
-    """``_tolerant``: colour radii at least ``edge_tolerance``; depth radii ``edge_tolerance``
-    alone unless ``refine_tolerance_depth``, then the colour radii; 0 changes nothing."""
+def test_tolerant_takes_the_depth_radii_only_with_refine_tolerance_depth():
+    """``_tolerant``: the colour radii as measured; the depth radii the same with
+    ``refine_tolerance_depth``, else none; radius 0 changes nothing."""
     from types import SimpleNamespace
 
     from clearsplat.filter.refine import _tolerant
@@ -109,23 +88,22 @@ def test_edge_tolerance_is_the_least_radius_in_colour_and_depth():
     depths = [rng.uniform(1, 2, (6, 9)) for _ in range(2)]
     rgbs = [rng.uniform(0, 1, (6, 9, 3)) for _ in range(2)]
     measured = [0, 3]
-    for edge, tol_depth in ((0, False), (0, True), (2, False), (2, True), (4, False)):
-        state = SimpleNamespace(config=FilterConfig(edge_tolerance=edge,
-                                                    refine_tolerance_depth=tol_depth))
+    for tol_depth in (False, True):
+        state = SimpleNamespace(config=FilterConfig(refine_tolerance_depth=tol_depth))
         d, lo, hi = _tolerant(state, depths, rgbs, measured)
-        colour = [max(r, edge) for r in measured]
-        depth = colour if tol_depth else [edge, edge]
+        colour = measured
+        depth = colour if tol_depth else [0, 0]
         for v in range(2):
             np.testing.assert_array_equal(
                 d[v], tolerant_reference([depths[v]], [rgbs[v]], depth[v])[0][0])
             ref = tolerant_reference([depths[v]], [rgbs[v]], colour[v])
             np.testing.assert_array_equal(lo[v], ref[1][0])
             np.testing.assert_array_equal(hi[v], ref[2][0])
-    state = SimpleNamespace(config=FilterConfig(edge_tolerance=0))
+    state = SimpleNamespace(config=FilterConfig())
     assert _tolerant(state, depths, rgbs, 0) == (depths, rgbs, None)
 
 
-def test_edge_tolerance_keeps_a_static_edge_that_another_view_places_a_pixel_away():
+def test_a_depth_radius_keeps_a_static_edge_that_another_view_places_a_pixel_away():
     """Closed form: a near surface (depth 1) covers columns 0-9 of view 0 and only 0-8 of the
     other views' reference, which shows the far one (depth 2) from column 9 on. Column 9's
     Gaussians stand in front of the reference at their own pixel, not of the nearest surface
@@ -148,9 +126,9 @@ def test_edge_tolerance_keeps_a_static_edge_that_another_view_places_a_pixel_awa
         assert front[col == 9].all() == edge_in_front and not front[col != 9].any()
 
 
-def test_depth_scale_is_measured_against_scale_depths():
-    """``scale_depths``: each view's depth scale and spread come from those depths, the test
-    from ``reference_depths``; a slow per-view reference of the same rule."""
+def test_depth_scale_alignment_against_a_slow_reference():
+    """``align_scale``: each view's depths divided by their median ratio to the reference and
+    its margin widened by the ratio's spread; a slow per-view reference of the same rule."""
     from clearsplat.filter.refine import _SPREAD_FACTOR, member_depths
     world = make_world("object", num_views=3, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "depth", seed=0, clean=True)
@@ -159,15 +137,13 @@ def test_depth_scale_is_measured_against_scale_depths():
     near, _, _ = tolerant_reference(ref, ref, 0, depth_radius=1)
     margins = [None] * scene.num_views      # each view's margin, as the test used it
     got = revealing_gaussians(scene, index, near, margin=0.02, align_scale=True,
-                              scale_depths=ref, margins=margins)
-    assert not np.array_equal(got, revealing_gaussians(scene, index, near, margin=0.02,
-                                                       align_scale=True))
+                              margins=margins)
     depths, pixels = member_depths(scene, index)
     for v, members in enumerate(index.members):
         z, pix = depths[v], pixels[v]
-        scale, spread = view_depth_scales([z], [ref[v].ravel()[pix]])[0]
-        margin = max(0.02, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
         behind = near[v].ravel()[pix]
+        scale, spread = view_depth_scales([z], [behind])[0]
+        margin = max(0.02, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
         expected = (behind > 0) & (z / scale < (1.0 - margin) * behind)
         np.testing.assert_array_equal(got[members], expected)
         assert margins[v] == margin
@@ -175,31 +151,6 @@ def test_depth_scale_is_measured_against_scale_depths():
     fixed = [None] * scene.num_views
     revealing_gaussians(scene, index, near, margin=0.02, margins=fixed)
     assert fixed == [0.02] * scene.num_views     # without align_scale: the margin itself
-    # the same depths for both: the default
-    np.testing.assert_array_equal(
-        revealing_gaussians(scene, index, near, margin=0.02, align_scale=True,
-                            scale_depths=near),
-        revealing_gaussians(scene, index, near, margin=0.02, align_scale=True))
-
-
-def test_tolerant_error_is_the_distance_to_the_box_and_equal_to_l1_for_a_point_box():
-    rng = np.random.default_rng(3)
-    base, after, img = (rng.uniform(0, 1, (50, 3)).astype(np.float32) for _ in range(3))
-    excluded = rng.uniform(size=50) < 0.2
-    plain = change_weighted_terms(base, after, img, excluded, 0.002)
-    point = change_weighted_terms(base, after, img, excluded, 0.002, image_hi=img)
-    assert point.num == pytest.approx(plain.num, rel=1e-12)
-    assert point.den == plain.den and point.err == pytest.approx(plain.err, rel=1e-12)
-    lo, hi = img - 0.1, img + 0.1
-    got = change_weighted_terms(base, after, lo, excluded, 0.002, image_hi=hi)
-    b, a = base.astype(np.float64), after.astype(np.float64)
-    w = np.abs(a - b).sum(1)
-    ok = (w > 0.002) & ~excluded
-
-    def dist(x):
-        return (np.maximum(lo - x, 0) + np.maximum(x - hi, 0)).sum(1)
-    assert got.num == pytest.approx(np.sum((w * (dist(b) - dist(a)))[ok]), rel=1e-9)
-    assert got.err == pytest.approx(np.sum((w * dist(b))[ok]), rel=1e-9)
 
 
 def test_relative_score_is_the_share_of_the_error_removed():
@@ -291,20 +242,16 @@ def test_depth_scale_alignment_undoes_a_view_scale_bias():
 def test_options_are_validated_and_off_in_the_paper_presets():
     for name in ("paper", "paper-local"):
         cfg = FilterConfig.preset(name)
-        assert not cfg.photometric_align and not cfg.depth_scale_align
-        assert cfg.verify_tolerance == 0 and cfg.refine_tolerance == 0
+        assert not cfg.depth_scale_align and cfg.refine_tolerance == 0
         assert cfg.min_relative_score == 0.0 and cfg.relative_score_pool == "sum"
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
         assert not cfg.expand_connected and cfg.refine_tolerance_depth
-        assert cfg.depth_scale_reach == 0 and cfg.rounds == 1
-        assert cfg.refine_color_grow is None and cfg.edge_tolerance == 0
-    for field, bad in (("verify_tolerance", -1), ("refine_tolerance", 1.5),
-                       ("verify_tolerance", True), ("min_relative_score", 1.0),
+        assert cfg.rounds == 1
+    for field, bad in (("refine_tolerance", -1), ("refine_tolerance", 1.5),
+                       ("refine_tolerance", True), ("min_relative_score", 1.0),
                        ("min_relative_score", -0.1), ("refine_passes", 0),
                        ("refine_passes", 1.5), ("verify_mask", "none"), ("rounds", 0),
-                       ("rounds", 2.5), ("refine_color_grow", -0.1),
-                       ("refine_color_grow", "high"), ("edge_tolerance", -1),
-                       ("edge_tolerance", 1.5)):
+                       ("rounds", 2.5)):
         with pytest.raises(ClearsplatError) as e:
             FilterConfig(**{field: bad})
         assert e.value.field == field
@@ -319,10 +266,8 @@ def soft_scene():
 def test_options_off_give_the_filter_without_them(soft_scene):
     scene, _ = soft_scene
     ex = get_extractor("local")
-    off = dict(photometric_align=False, depth_scale_align=False, verify_tolerance=0,
-               refine_tolerance=0, min_relative_score=0.0, refine_passes=1,
-               expand_connected=False, refine_tolerance_depth=True, depth_scale_reach=0,
-               rounds=1, edge_tolerance=0)
+    off = dict(depth_scale_align=False, refine_tolerance=0, min_relative_score=0.0,
+               refine_passes=1, expand_connected=False, refine_tolerance_depth=True, rounds=1)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -335,14 +280,13 @@ def test_options_off_give_the_filter_without_them(soft_scene):
 def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option):
     scene, _ = soft_scene
     ex = get_extractor("local")
-    base = filter_distractors(scene, config=FilterConfig(min_relative_score=0.0, verify_tolerance=0,
+    base = filter_distractors(scene, config=FilterConfig(min_relative_score=0.0,
                                                          refine_tolerance=0,
                                                          depth_scale_align=False,
-                                                         photometric_align=False,
                                                          refine_passes=1,
                                                          expand_connected=False,
                                                          refine_tolerance_depth=True,
-                                                         rounds=1, edge_tolerance=0),
+                                                         rounds=1),
                               extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
                              extractor=ex)
@@ -561,35 +505,6 @@ def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):
     np.testing.assert_array_equal(a.keep, b.keep)
 
 
-def test_local_depth_scales_follow_a_slow_ramp_and_ignore_a_small_object():
-    from clearsplat.filter.robust import local_depth_scales
-    h, w = 64, 128
-    yy, xx = np.mgrid[0:h, 0:w]
-    ref = np.full((h, w), 4.0)
-    true_scale = np.exp(0.1 * xx / w)                  # 0-10 % too far, slowly across the view
-    own = ref * true_scale
-    obj = (abs(yy - 30) < 5) & (abs(xx - 60) < 5)      # a small object 30 % in front
-    own[obj] *= 0.7
-    pix = (yy * w + xx).ravel()
-    scale, spread = local_depth_scales(own.ravel(), ref.ravel(), pix, h, w, reach=1)
-    # the ramp is followed to within a cell's worth of it, the object does not move the scale
-    assert np.abs(np.log(scale) - np.log(true_scale.ravel())).max() < 0.1 * 48 / w + 1e-9
-    aligned = own.ravel() / scale
-    assert (aligned[obj.ravel()] < 0.8 * ref.ravel()[obj.ravel()]).all()
-    assert spread < 0.02
-    # a constant ratio is the global median, and one scale per view is its special case
-    s2, sp2 = local_depth_scales(ref.ravel() * 1.05, ref.ravel(), pix, h, w, reach=2)
-    np.testing.assert_allclose(s2, 1.05)
-    assert sp2 == pytest.approx(0.0, abs=1e-12)
-    g, gs = view_depth_scales([ref.ravel() * 1.05], [ref.ravel()])[0]
-    assert g == pytest.approx(1.05)
-    # unknown pixels and empty references keep scale 1
-    bad = pix.copy()
-    bad[:10] = -1
-    s3, _ = local_depth_scales(own.ravel(), ref.ravel(), bad, h, w)
-    assert (s3[:10] == 1).all()
-
-
 def _two_runs(scene, one, ex):
     """The filter ``one`` (one round) run on ``scene``, then on what it kept: ``(first, kept,
     second, expect)``, ``expect`` the keep mask two rounds must give."""
@@ -781,79 +696,6 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
     _, second, res = _two_rounds_are_two_runs(scene, one, ex)
     assert res.stats["views_derived"] == scene.num_views
     assert len(second.candidates) > 0
-
-
-def _joined_by_flood_fill(seeds, weak, pixels, h, w):
-    """Slow reference for join_touching: breadth-first search over the pixel grid."""
-    seeds, weak = seeds & (pixels >= 0), weak & (pixels >= 0)
-    open_px = set(pixels[seeds].tolist()) | set(pixels[weak].tolist())
-    reached, frontier = set(pixels[seeds].tolist()), list(set(pixels[seeds].tolist()))
-    while frontier:
-        p = frontier.pop()
-        y, x = divmod(p, w)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                yy, xx = y + dy, x + dx
-                q = yy * w + xx
-                if 0 <= yy < h and 0 <= xx < w and q in open_px and q not in reached:
-                    reached.add(q)
-                    frontier.append(q)
-    return weak & np.isin(pixels, list(reached))
-
-
-def test_join_touching_matches_a_flood_fill():
-    from clearsplat.filter.refine import join_touching
-    rng = np.random.default_rng(11)
-    for trial in range(30):
-        h, w = rng.integers(1, 40, size=2)
-        m = int(rng.integers(1, 3 * h * w))
-        pixels = rng.integers(-2, h * w, size=m)            # some pixels shared, some none
-        seeds = rng.uniform(size=m) < rng.uniform(0, 0.1)
-        weak = ~seeds & (rng.uniform(size=m) < rng.uniform(0.1, 0.7))
-        got = join_touching(seeds, weak, pixels, int(h), int(w))
-        np.testing.assert_array_equal(got, _joined_by_flood_fill(seeds, weak, pixels, h, w),
-                                      err_msg=f"trial {trial}")
-        assert not (got & ~weak).any()
-
-
-def test_colour_hysteresis_joins_the_foot_of_an_object_and_nothing_apart():
-    """One view of a flat wall at depth 4. An object stands in front of it: its top rows are
-    well in front (they qualify by depth), its bottom rows touch the wall and differ from the
-    wall's colour by 0.36, between the two thresholds. A patch of the same colour apart from
-    the object touches the wall too: it has nothing to join."""
-    h, w = 16, 16
-    world = make_world("object", num_views=2, seed=0, height=h, width=w)
-    scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
-    cam = scene.cameras[0]
-    index = ViewIndex(scene)
-    members = index.members[0]
-    rows, cols = np.divmod(index.pixels[0], w)
-    depth = np.full(members.size, 4.0)
-    top, foot = (rows >= 2) & (rows < 5) & (cols >= 3) & (cols < 8), \
-        (rows >= 5) & (rows < 8) & (cols >= 3) & (cols < 8)
-    apart = (rows >= 3) & (rows < 8) & (cols >= 12) & (cols < 15)
-    depth[top] = 3.0
-    grid = np.zeros((h, w))
-    grid.reshape(-1)[index.pixels[0]] = depth
-    means = scene.gaussians.means.copy()
-    means[members] = cam.unproject(grid).reshape(-1, 3)[index.pixels[0]]
-    scene.gaussians.means = means
-    wall = np.full((h, w, 3), 0.5)
-    image = wall.reshape(-1, 3).copy()
-    image[top | foot] = [0.62, 0.62, 0.62]
-    image[apart] = [0.62, 0.62, 0.62]
-    images = [image.reshape(h, w, 3), np.asarray(scene.images[1])]
-    ref_depth = [np.full((h, w), 4.0), np.zeros((h, w))]
-    ref_rgb = [wall, np.full((h, w, 3), np.nan)]
-    kw = dict(margin=0.02, reference_rgbs=ref_rgb, color_threshold=0.5, images=images)
-    off = revealing_gaussians(scene, index, ref_depth, **kw)[members]
-    on = revealing_gaussians(scene, index, ref_depth, color_grow=0.3, **kw)[members]
-    np.testing.assert_array_equal(off, top)
-    np.testing.assert_array_equal(on, top | foot)
-    # A lower threshold above the difference, or one at or above refine_color: no growth.
-    for grow in (0.4, 0.5, 0.7):
-        np.testing.assert_array_equal(
-            revealing_gaussians(scene, index, ref_depth, color_grow=grow, **kw)[members], top)
 
 
 def test_rounds_with_color_explained_are_runs_on_what_each_kept():

@@ -70,12 +70,7 @@ ABLATIONS = {
     "no-verify": "default+verify=false",
     # Options that are off by default, switched on.
     "refine-tol=2": "default+refine_tolerance=2",
-    "+photo-align": "default+photometric_align=true",
-    "+verify-tol=2": "default+verify_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
-    "+support-margin": "default+support_margin=0.0001",
-    "+align-depths": "default+align_depths=true",
-    "+edge-tol": "default+edge_tolerance=1",
     "+expand-by-depth": "default+expand_color=false",
     "+reveal-any-angle": "default+reveal_max_angle=null",
     "video": "video",

@@ -95,7 +95,7 @@ SCORE_UNITS = ("Scores are the change-weighted mean reduction of the per-pixel L
                "(|dR|+|dG|+|dB|, colours in [0, 1], so between -3 and 3) against the input "
                "image, over the verification views' pixels that the removal changes by more "
                "than epsilon; positive means the render without the candidate is closer to the "
-               "input. A test passes above min_score.")
+               "input. A test passes above 0.")
 
 
 def write_report(out_dir: str, scene, result, *, source: str | None = None,

@@ -8,14 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..features import upsample_nearest
 from ..render import contributions
 from ..scene import Scene
-from .masks import dilate
 
 
-__all__ = ["ViewIndex", "RegionMap", "view_members", "region_gaussians", "removable",
-           "prune_views"]
+__all__ = ["ViewIndex", "RegionMap", "view_members", "region_gaussians"]
 
 
 class ViewIndex:
@@ -133,33 +130,3 @@ class RegionMap:
         return region_gaussians(self.scene, view, pixels, index=self.index,
                                 min_weight=self.min_weight,
                                 prepared=self.views[view] if self.loose[view] else None)
-
-def removable(proposals, region_map, n: int, dilation: float,
-              grow_below: float | None = None) -> np.ndarray:
-    """(N,) bool: every Gaussian a candidate or its expansion can hold, i.e. those the
-    regions of each view map to, dilated within the support as expansion does, and with
-    ``grow_below`` (``expand_connected``) those of every cell of similarity below it."""
-    out = np.zeros(n, dtype=bool)
-    for p in proposals:
-        proposed = p.mask1 | p.mask2
-        if proposed.any():
-            pixels = (dilate(proposed, dilation) & p.support_pixels) | proposed
-            if grow_below is not None:
-                h, w = pixels.shape
-                pixels |= upsample_nearest(p.similarity < grow_below, h, w)
-            out[region_map(p.view, pixels)] = True
-    return out
-
-
-def prune_views(state, proposals, region_map: RegionMap) -> None:
-    """With ``prune_views``: every later render of camera j keeps all Gaussians but view j's
-    own and those any candidate (or its expansion) can take away (:func:`removable`), so the
-    views keep only what such renders can reach. Views without pixel ids keep everything
-    (their association composites the view's own Gaussians alone)."""
-    if not state.backend.prunes_views:
-        return
-    config = state.config
-    can_go = removable(proposals, region_map, state.n, config.dilation,
-                       state.tau2 if config.expand_connected else None)
-    state.views.prune(lambda j: None if region_map.loose[j] else ~(state.own[j] | can_go))
-    state.lap("prune")

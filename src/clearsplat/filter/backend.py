@@ -3,8 +3,8 @@
 The stages never import a renderer. They ask the round's backend for
 
 - :meth:`FilterBackend.prepare_views`: one prepared view per input camera, as a *view set*
-  (``views[j]``, ``len(views)``, ``views.sees(j, gaussians)``, ``views.prune(floor)``,
-  ``views.release()``, ``views.stats(derived=...)``);
+  (``views[j]``, ``len(views)``, ``views.sees(j, gaussians)``, ``views.release()``,
+  ``views.stats(derived=...)``);
 - :meth:`FilterBackend.verifier`: the :class:`~clearsplat.filter.verify.Verifier` that scores
   removals on those views;
 
@@ -56,15 +56,12 @@ class FilterBackend:
     incremental : bool
         Verification re-composites only the tiles a removal touches, and leaves out the views
         it cannot change.
-    prunes_views : bool
-        The views can be pruned to what later renders can reach (``config.prune_views``).
     hands_on : bool
         A round's views and renders can be handed to the next round (:class:`Carry
         <clearsplat.filter.rounds.Carry>`).
     """
 
     incremental = False
-    prunes_views = False
     hands_on = False
 
     def __init__(self, config: FilterConfig):
@@ -82,12 +79,10 @@ class FilterBackend:
         which builds those Gaussian masks faster (optional)."""
         raise NotImplementedError
 
-    def verifier(self, views, images: list, images_hi: list | None, *, epsilon: float,
-                 hole_alpha: float) -> Verifier:
-        """The scorer of removals on ``views`` against ``images`` (lower bounds when
-        ``images_hi`` are given)."""
+    def verifier(self, views, images: list, *, epsilon: float, hole_alpha: float) -> Verifier:
+        """The scorer of removals on ``views`` against ``images``."""
         return Verifier(views, images, epsilon=epsilon, incremental=self.incremental,
-                        hole_alpha=hole_alpha, images_hi=images_hi)
+                        hole_alpha=hole_alpha)
 
 
 class NativeBackend(FilterBackend):
@@ -96,8 +91,7 @@ class NativeBackend(FilterBackend):
     def __init__(self, config: FilterConfig):
         super().__init__(config)
         self.incremental = bool(config.incremental)
-        self.prunes_views = bool(config.prune_views)
-        self.hands_on = self.incremental and not config.prune_views
+        self.hands_on = self.incremental
         self.budget = None if config.view_memory is None else int(config.view_memory * 1e9)
 
     def check_memory(self, scene, previous=None) -> None:
@@ -146,9 +140,6 @@ class DeviceViews(list):
 
     def sees(self, j: int, gaussians) -> bool:
         return True
-
-    def prune(self, floor) -> None:
-        pass
 
     def release(self) -> None:
         pass
@@ -216,7 +207,7 @@ class TorchBackend(FilterBackend):
     """The native rasterizer's math in torch on ``config.device``
     (:class:`clearsplat.render.torch_view.TorchView`): one upload of the Gaussians shared by
     the views, each view projected once; incremental verification with all removals of a view
-    in one batched call; views neither pruned nor handed on."""
+    in one batched call; views not handed on."""
 
     def __init__(self, config: FilterConfig):
         super().__init__(config)

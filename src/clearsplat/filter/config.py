@@ -140,12 +140,6 @@ class FilterConfig:
         paper's 0.50 and 0.70 for DINO).
     eta : float
         Support: minimum patch-mean accumulated opacity of the exclusion render [eta].
-    support_margin : float
-        Support: how much farther, as a share of the depth, the exclusion must reveal a surface
-        (the patch-mean depth of R_i^-i beyond that of R_i). Where a view's own Gaussians hide
-        nothing, the two renders hold the same surface and their depths differ by rounding
-        alone; the paper's strict comparison (0) then lets rounding decide about a third of
-        each view's patches.
     num_verify_views : int
         Verification views per candidate [n_v].
     epsilon : float
@@ -167,10 +161,6 @@ class FilterConfig:
         tested candidate's, so that another view's distractor standing in front of it in the
         verifying view does not hide what its removal changes, as the static reference of
         ``refine`` leaves every proposal out (docs/method.md, "`verify_base="static"`").
-    joint_base : {"exclude-own", "full"}
-        What the joint test of the second-range candidates renders each view from (the paper says
-        "the same error reduction" as the additional test; we read that as excluding each view's own
-        Gaussians).
     refine : {"static-depth", "depth", "none"}
         ``"static-depth"``: a candidate keeps only the Gaussians of its view that lie in front of
         the surface the other views render at their pixel once every proposed Gaussian (of any
@@ -187,13 +177,6 @@ class FilterConfig:
         With ``refine="static-depth"``: also keep Gaussians whose input colour differs from the
         static reference's colour by more than this (L1 over RGB) and that do not lie behind it
         (the parts of an object that touch the surface behind it). None: depth only.
-    refine_color_grow : float or None
-        With ``refine_color``: hysteresis for that colour test. A Gaussian that touches the
-        static reference (as above) and differs from its colour by more than this lower
-        threshold also qualifies when its pixel is 8-connected, through such pixels, to a pixel
-        of a Gaussian of its view that qualifies on its own (in front, or beyond
-        ``refine_color``): the foot of an object standing on the floor, joined to the rest of
-        the object. None: off (as is a value at or above ``refine_color``).
     verify_mask : {"auto", "proposals+revealing", "proposals", "revealing"}
         Pixels each verifying view leaves out. ``"proposals"``: its proposal regions (the paper).
         ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
@@ -213,8 +196,6 @@ class FilterConfig:
         removal. ``"skip"`` leaves them out. ``"auto"`` counts them unless the scene has only two
         views, where every removal opens holes in the one verifying view (rendered without its
         own Gaussians) and counting them would forbid any removal.
-    min_score : float
-        Accept a test only when its score exceeds this (the paper: 0, i.e. positive).
     association_min_weight : float
         For scenes without ``pixel_id``: a Gaussian of the candidate's view belongs to a region when
         its blending weight (alpha * T) at some pixel of the region reaches this.
@@ -230,40 +211,11 @@ class FilterConfig:
         never changes the output. A later round (``rounds``) gives its views this less what
         stays held while it runs (the result of the rounds before, its copy of the kept
         Gaussians), so that it peaks about where the first does. None: no limit.
-    prune_views : bool
-        Once the proposals are known, keep of each prepared input view (CPU) only the tile-list
-        entries that a later render can reach: every later render of that camera keeps all
-        Gaussians but the view's own and those of the proposed regions, so an entry behind
-        pixels that stop in front of it under those alone never changes one. Never changes the
-        output. Off by default: on the stand-in scenes at 32 views the proposals cover about
-        half of every image, so little can be pruned and the pruning pass costs more than it
-        saves (``docs/benchmarks.md``, "Dense captures").
-    photometric_align : bool
-        Map each input image per channel (affine, robust fit) to the colours the other views
-        render there before the similarity, the colour test of ``refine_color`` and the
-        verification errors (:func:`clearsplat.filter.robust.photometric_alignment`): views that
-        differ in exposure or white balance then compare like with like. False: the paper.
-    align_depths : bool
-        Before anything else, move each view's Gaussians along their camera rays to the other
-        views' depth scale (:mod:`clearsplat.filter.align`): a view predicted a few percent too
-        far places its distractors behind the surface that the other views render, where no
-        verification view sees them. The scales are measured from the pixel-aligned
-        predictions (views without pixel ids keep theirs); the output refers to the input's
-        Gaussians. False: the paper (the prediction as it is).
     depth_scale_align : bool
         Judge "in front of the static surface" (``refine``) in each view's own depth scale: its
         depths divided by their median ratio to the static reference first, and the margin
         widened to 2.5 robust standard deviations of that ratio where the view's depths are
         noisier. False: the paper.
-    depth_scale_reach : int
-        With ``depth_scale_align``: 0 uses one scale per view; k > 0 the median depth ratio
-        within k 16-pixel cells around each Gaussian (:func:`clearsplat.filter.robust.
-        local_depth_scales`), which follows low-frequency depth errors and so leaves a smaller
-        spread to widen the margin by.
-    verify_tolerance : int
-        Radius in pixels: a verification error counts only the distance of a render colour to the
-        range of the input colours within this radius (0: the plain L1 error, the paper), so that
-        a small misregistration is evidence neither way.
     refine_tolerance : int or "auto"
         Radius in pixels of the misregistration the ``refine`` tests tolerate: a Gaussian is in
         front of the static reference only if it is in front of the nearest surface the other
@@ -278,14 +230,6 @@ class FilterConfig:
         Gaussian's own pixel: the nearest surface within a few pixels of a small object on a
         sloping floor is the floor in front of it, so the tolerant depth test drops most of
         such an object.
-    edge_tolerance : int
-        The least radius in pixels of the ``refine`` tests' tolerance, in colour and in depth,
-        whatever ``refine_tolerance`` measures: views in register still place an occlusion edge
-        a pixel or so apart (each samples the edge at its own sub-pixel phase, and a
-        pixel-aligned prediction's edge pixel mixes both surfaces), so that a static surface's
-        edge stands "in front of" the background another view renders beside it. The depth
-        test takes this radius even where ``refine_tolerance_depth`` is False (the colour test
-        the larger of the two). 0: the tests at the Gaussian's own pixel where the views agree.
     min_relative_score : float
         Also require each test's removal to take away more than this share of the
         change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
@@ -302,7 +246,7 @@ class FilterConfig:
         with fewer than three such views, the pooled share), so that one view neither carries
         a candidate (a surface only the candidate's view sees, smeared over another view's
         render) nor vetoes it (pixels that neither render explains, where that view's own
-        distractor or a misplaced surface stands). The score condition (``min_score``) stays
+        distractor or a misplaced surface stands). The score condition (a positive score) stays
         pooled over the views, as in the paper. Default ``"median"``; the paper has no share
         condition (``min_relative_score=0``), so the pool does not matter there.
     color_explained : float or None
@@ -485,7 +429,6 @@ class FilterConfig:
     tau1: float | None = None
     tau2: float | None = None
     eta: float = 0.50
-    support_margin: float = 0.0
     num_verify_views: int = 3
     epsilon: float = 0.002
     dilation: int = 9
@@ -493,24 +436,17 @@ class FilterConfig:
     single_threshold: bool = False
     verify: bool = True
     verify_base: Literal["full", "exclude-own", "static"] = "static"
-    joint_base: Literal["exclude-own", "full"] = "exclude-own"
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
     refine_margin: float = 0.02
     refine_color: float | None = 0.5
-    refine_color_grow: float | None = None
     verify_mask: Literal["auto", "proposals+revealing", "proposals", "revealing"] = "auto"
     verify_holes: Literal["auto", "skip", "count"] = "auto"
-    min_score: float = 0.0
     association_min_weight: float = 0.05
     incremental: bool = True
     num_threads: int | None = None
     view_memory: float | None = 2.0
-    prune_views: bool = False
     device: str = "cpu"
-    photometric_align: bool = False
-    align_depths: bool = False
     depth_scale_align: bool = True
-    verify_tolerance: int = 0
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
     relative_score_pool: Literal["sum", "median"] = "median"
@@ -523,8 +459,6 @@ class FilterConfig:
     expand_color: bool = True
     expand_color_bound: float | None = 0.99
     refine_tolerance_depth: bool = False
-    edge_tolerance: int = 0
-    depth_scale_reach: int = 0
     rounds: int | str = "auto"
     neighbours: int | None | str = "auto"
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
@@ -617,7 +551,6 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "tau1": FieldSpec("number", -1.0, 1.0, optional=True),
     "tau2": FieldSpec("number", -1.0, 1.0, optional=True),
     "eta": _unit(),
-    "support_margin": _unit(),
     "num_verify_views": FieldSpec("integer", 1),
     "epsilon": FieldSpec("number", 0.0, 3.0),           # L1 over RGB in [0, 1]: at most 3
     "dilation": FieldSpec("integer", 0),
@@ -625,25 +558,18 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "single_threshold": FieldSpec("bool"),
     "verify": FieldSpec("bool"),
     "verify_base": FieldSpec("choice", choices=("full", "exclude-own", "static")),
-    "joint_base": FieldSpec("choice", choices=("exclude-own", "full")),
     "refine": FieldSpec("choice", choices=("static-depth", "depth", "none")),
     "refine_margin": FieldSpec("number", 0.0),
     "refine_color": FieldSpec("number", 0.0, 3.0, optional=True),
-    "refine_color_grow": FieldSpec("number", 0.0, 3.0, optional=True),
     "verify_mask": FieldSpec("choice", choices=("auto", "proposals+revealing", "proposals",
                                                  "revealing")),
     "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
-    "min_score": FieldSpec("number"),
     "association_min_weight": _unit(low_open=True),
     "incremental": FieldSpec("bool"),
     "num_threads": FieldSpec("integer", 1, optional=True),
     "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
-    "prune_views": FieldSpec("bool"),
     "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
-    "photometric_align": FieldSpec("bool"),
-    "align_depths": FieldSpec("bool"),
     "depth_scale_align": FieldSpec("bool"),
-    "verify_tolerance": FieldSpec("integer", 0),
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
     "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
@@ -656,8 +582,6 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "expand_color": FieldSpec("bool"),
     "expand_color_bound": _unit(optional=True),
     "refine_tolerance_depth": FieldSpec("bool"),
-    "edge_tolerance": FieldSpec("integer", 0),
-    "depth_scale_reach": FieldSpec("integer", 0),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
@@ -678,32 +602,24 @@ PRESETS = {
     # clearsplat's default (see docs/method.md for each departure and its ablation).
     "default": FilterConfig(),
     # The paper's procedure exactly (DINOv3 features need a local checkpoint).
-    "paper": FilterConfig(features="dinov3", verify_base="full", joint_base="exclude-own",
-                          refine="none", verify_mask="proposals", verify_holes="count",
-                          min_score=0.0, photometric_align=False, depth_scale_align=False,
-                          align_depths=False,
-                          verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
-                          min_relative_score=0.0, relative_score_pool="sum",
+    "paper": FilterConfig(features="dinov3", verify_base="full", refine="none",
+                          verify_mask="proposals", verify_holes="count", depth_scale_align=False,
+                          refine_tolerance=0, min_relative_score=0.0, relative_score_pool="sum",
                           color_explained=None, silhouette_explained=None,
                           widened_band_color=None, expand_color_bound=None,
                           refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
-                          edge_tolerance=0, depth_scale_reach=0, rounds=1, refine_color_grow=None,
-                          neighbours=None, verify_views="centres", verify_mask_removed=False,
-                          verify_hidden=None, verify_hidden_widen=False,
-                          reveal_reference="composite"),
+                          rounds=1, neighbours=None, verify_views="centres",
+                          verify_mask_removed=False, verify_hidden=None,
+                          verify_hidden_widen=False, reveal_reference="composite"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
-    "paper-local": FilterConfig(features="local", verify_base="full", joint_base="exclude-own",
-                                refine="none", verify_mask="proposals", verify_holes="count",
-                                min_score=0.0, photometric_align=False, depth_scale_align=False,
-                                align_depths=False,
-                                verify_tolerance=0, refine_tolerance=0, support_margin=0.0,
+    "paper-local": FilterConfig(features="local", verify_base="full", refine="none",
+                                verify_mask="proposals", verify_holes="count",
+                                depth_scale_align=False, refine_tolerance=0,
                                 min_relative_score=0.0, relative_score_pool="sum",
                                 color_explained=None, silhouette_explained=None,
                                 widened_band_color=None, expand_color_bound=None,
                                 refine_passes=1, expand_connected=False,
-                                refine_tolerance_depth=True, edge_tolerance=0,
-                                depth_scale_reach=0, rounds=1,
-                                refine_color_grow=None, neighbours=None,
+                                refine_tolerance_depth=True, rounds=1, neighbours=None,
                                 verify_views="centres", verify_mask_removed=False,
                                 verify_hidden=None, verify_hidden_widen=False,
                                 reveal_reference="composite"),

@@ -27,8 +27,7 @@ import numpy as np
 from ..errors import ClearsplatError
 from ..features import get_extractor
 from ..scene import Scene
-from .align import aligned_scene, view_depth_alignment
-from .association import RegionMap, prune_views
+from .association import RegionMap
 from .backend import backend_for
 from .config import FilterConfig
 from .exclusion import exclusion_renders
@@ -37,7 +36,6 @@ from .proposal import propose
 from .refine import explained_candidates, refine, removed_pixels
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
-from .robust import aligned_images
 from .rounds import Carry, held_bytes, in_round, kept_scene, merge_round
 from .state import Progress, RoundState
 from .verify import (individual_tests, make_verifier, range_masks, second_range_tests,
@@ -89,8 +87,6 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                                   **({"checkpoint": config.checkpoint} if dino else {}))
     report = progress or (lambda stage, done, total: None)
     backend = backend_for(config)
-    if config.align_depths:     # the same Gaussians, in the same order, at the views' scale
-        scene = aligned_scene(scene, view_depth_alignment(scene))
     rounds = config.rounds
     if rounds == "auto":
         rounds = 2 if scene.num_views >= _SECOND_ROUND_MIN_VIEWS else 1
@@ -159,13 +155,12 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         state.views.release()
         return FilterResult(np.ones(len(scene), bool), [], [], state.clock.timings, config,
                             [msg]), None
-    images = aligned_images(scene.images, renders.reference, config)
+    images = scene.images
     proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
     region_map = RegionMap(state)
     regions = [r for p in proposals for r in p.regions]
     raw = [region_map(r.view, r.pixels) for r in regions]                # C_k
     state.lap("regions")
-    prune_views(state, proposals, region_map)
     refinement = refine(state, renders, images, raw)                     # in front only
     state.lap("refine")
     revealing = refinement.revealing

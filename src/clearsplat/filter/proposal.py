@@ -125,13 +125,12 @@ def patch_means(values: np.ndarray, cells: np.ndarray, num_cells: int,
 
 def support_condition(alpha_excluded: np.ndarray, depth_full: np.ndarray,
                       depth_excluded: np.ndarray, grid_shape: tuple[int, int], *,
-                      eta: float, margin: float = 0.0) -> np.ndarray:
+                      eta: float) -> np.ndarray:
     """The support condition g_i on the feature grid, (h, w) bool.
 
     A patch is supported when the mean accumulated opacity of the exclusion render exceeds
     ``eta`` and, over the pixels with valid (positive) depth in both renders, the mean depth
-    before exclusion is nearer than after, by more than ``margin`` times the depth before
-    (0: any amount, the paper). Patches without such pixels fail.
+    before exclusion is nearer than after. Patches without such pixels fail.
     """
     height, width = alpha_excluded.shape
     cells = cell_index_map(grid_shape, height, width)
@@ -140,7 +139,7 @@ def support_condition(alpha_excluded: np.ndarray, depth_full: np.ndarray,
     both = (depth_full > 0) & (depth_excluded > 0)
     z_before, count = patch_means(depth_full, cells, n, both)
     z_after, _ = patch_means(depth_excluded, cells, n, both)
-    ok = (a_mean > eta) & (count > 0) & (z_before * (1.0 + margin) < z_after)
+    ok = (a_mean > eta) & (count > 0) & (z_before < z_after)
     return ok.reshape(grid_shape)
 
 
@@ -169,8 +168,7 @@ def connected_regions(ranges: np.ndarray, which: int) -> list[np.ndarray]:
 def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
                  depth_full: np.ndarray, depth_excluded: np.ndarray, *, eta: float,
                  tau1: float, tau2: float, second_range: bool = True,
-                 single_threshold: bool = False, support_margin: float = 0.0
-                 ) -> ViewProposal:
+                 single_threshold: bool = False) -> ViewProposal:
     """The proposal of one input view from its similarity map and renders.
 
     Parameters
@@ -182,12 +180,10 @@ def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
         Accumulated opacity of R_i^-i.
     depth_full, depth_excluded : (H, W) float
         Expected depth of R_i and R_i^-i (0 where nothing was hit).
-    support_margin : float
-        How much farther (relative) the exclusion must reveal a surface (:func:`support_condition`).
     """
     height, width = alpha_excluded.shape
     support = support_condition(alpha_excluded, depth_full, depth_excluded,
-                                similarity.shape, eta=eta, margin=support_margin)
+                                similarity.shape, eta=eta)
     ranges = proposal_ranges(similarity, support, tau1=tau1, tau2=tau2,
                              second_range=second_range, single_threshold=single_threshold)
     out = ViewProposal(view=view, similarity=similarity.astype(np.float32), support=support,
@@ -209,7 +205,7 @@ def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
     renders : ExclusionRenders
         R_i and R_i^-i of every view.
     images : list of (H, W, 3) float32
-        The input images the comparison uses (photometrically aligned where configured).
+        The input images the comparison uses.
     extractor : FeatureExtractor
         Gives the similarity s_i between each input and its exclusion render.
 
@@ -237,6 +233,6 @@ def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
         proposals.append(propose_view(
             i, sims[i], excl[i].alpha, full[i].depth, excl[i].depth, eta=config.eta,
             tau1=state.tau1, tau2=state.tau2, second_range=config.second_range,
-            single_threshold=config.single_threshold, support_margin=config.support_margin))
+            single_threshold=config.single_threshold))
         proposals[-1].exclusion = excl[i].rgb
     return proposals

@@ -18,12 +18,11 @@ import numpy as np
 from .._threads import thread_map
 from ..scene import Scene
 from .association import ViewIndex
-from .masks import dilate8, label8, touched_components
+from .masks import dilate8
 from .robust import misregistration, tolerant_reference
 
 __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
-           "join_touching", "member_depths", "member_pixels", "centre_pixels", "pixels_of",
-           "removed_pixels",
+           "member_depths", "member_pixels", "centre_pixels", "pixels_of", "removed_pixels",
            "box_distance", "color_distances", "explained_candidates", "static_mask",
            "static_color_bound", "static_color_bounds", "explained_silhouettes",
            "beyond_static_colors"]
@@ -43,10 +42,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
                         color_threshold: float | None = None, images: list | None = None,
                         align_scale: bool = False,
                         reference_rgbs_hi: list[np.ndarray] | None = None,
-                        scale_reach: int = 0, color_grow: float | None = None,
                         workers: int | None = None, members: tuple | None = None,
                         color_distance: np.ndarray | None = None,
-                        scale_depths: list[np.ndarray] | None = None,
                         by_depth: bool = False,
                         margins: list | None = None,
                         band_bounds: list | None = None) -> np.ndarray | tuple:
@@ -81,15 +78,6 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     reference_rgbs_hi : list of (H, W, 3) float, optional
         Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
         the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
-    scale_reach : int
-        With ``align_scale``: 0 divides each view's depths by one scale; k > 0 by the median
-        ratio within k 16-pixel cells around each Gaussian
-        (:func:`clearsplat.filter.robust.local_depth_scales`, ``FilterConfig.depth_scale_reach``).
-    color_grow : float, optional
-        With ``color_threshold``: a lower threshold for the same colour test, applied with
-        hysteresis. A Gaussian that touches the reference and differs from it by more than this
-        also qualifies when its pixel is 8-connected through such pixels to the pixel of one
-        that qualifies on its own (:func:`join_touching`, ``FilterConfig.refine_color_grow``).
     workers : int, optional
         Threads, one view at a time each (default: the cores, at most ``OMP_NUM_THREADS``); the
         result does not depend on it.
@@ -98,11 +86,6 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     color_distance : (N,) float, optional
         :func:`color_distances` against the same reference colours, when the caller has them
         already (the colour test then reads them instead of measuring again).
-    scale_depths : list of (H, W) float, optional
-        With ``align_scale``: the reference depths the view's depth scale and spread are
-        measured against (default ``reference_depths``); ``edge_tolerance`` passes the reference
-        at each Gaussian's own pixel here, since its nearest surface within the radius is nearer
-        along every occlusion edge and would bias both.
     by_depth : bool
         Also return the Gaussians that qualify by the depth test alone (without the colour
         test): ``(qualify, in_front)``, both (N,) bool.
@@ -115,7 +98,7 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         margin also qualifies when its colour distance exceeds the view's entry (None: not in
         that view; ``FilterConfig.widened_band_color``).
     """
-    from .robust import local_depth_scales, view_depth_scales
+    from .robust import view_depth_scales
     images = scene.images if images is None else images
     depths, pixels = member_depths(scene, index) if members is None else members
 
@@ -127,19 +110,9 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         behind = np.zeros(members.size)
         valid = pix >= 0
         behind[valid] = reference_depths[view].ravel()[pix[valid]]
-        measured = behind
-        if align_scale and scale_depths is not None:
-            measured = np.zeros(members.size)
-            measured[valid] = scale_depths[view].ravel()[pix[valid]]
         view_margin = margin
-        if align_scale and scale_reach > 0:
-            cam = scene.cameras[view]
-            scale, spread = local_depth_scales(z, measured, pix, cam.height, cam.width,
-                                               reach=scale_reach)
-            z = z / scale
-            view_margin = widened_margin(margin, spread)
-        elif align_scale:
-            scale, spread = view_depth_scales([z], [measured])[0]
+        if align_scale:
+            scale, spread = view_depth_scales([z], [behind])[0]
             z = z / scale
             view_margin = widened_margin(margin, spread)
         if margins is not None:
@@ -165,12 +138,6 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
             differ[valid] = diff > color_threshold       # False where the reference is NaN
             touching = (behind > 0) & (z > 0) & (z < (1.0 + margin) * behind)
             front |= differ & touching
-            if color_grow is not None and color_grow < color_threshold:
-                weak = np.zeros(members.size, dtype=bool)
-                weak[valid] = diff > color_grow
-                cam = scene.cameras[view]
-                front |= join_touching(front, weak & touching & ~front, pix,
-                                       cam.height, cam.width)
         return front, in_front
 
     out = np.zeros(len(scene), dtype=bool)
@@ -386,39 +353,6 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
     return out
 
 
-def join_touching(seeds: np.ndarray, weak: np.ndarray, pixels: np.ndarray, height: int,
-                  width: int) -> np.ndarray:
-    """The ``weak`` Gaussians joined to ``seeds`` through their pixels (hysteresis), (M,) bool.
-
-    Parameters
-    ----------
-    seeds, weak : (M,) bool
-        Over one view's Gaussians: those that qualify on their own, and those that qualify only
-        when joined to them.
-    pixels : (M,) int
-        Each Gaussian's pixel (row-major index into the (height, width) image; negative: none).
-    height, width : int
-
-    Returns
-    -------
-    (M,) bool
-        The weak Gaussians whose pixel lies in an 8-connected component of the pixels of
-        seed and weak Gaussians that holds a seed pixel.
-    """
-    joined = np.zeros(weak.shape, dtype=bool)
-    seeds = seeds & (pixels >= 0)
-    weak = weak & (pixels >= 0)
-    if not (seeds.any() and weak.any()):
-        return joined
-    seed_px = np.zeros(height * width, dtype=bool)
-    seed_px[pixels[seeds]] = True
-    either = seed_px.copy()
-    either[pixels[weak]] = True
-    labels = label8(either.reshape(height, width))[0].ravel()
-    joined[weak] = touched_components(labels, seed_px)[pixels[weak]]
-    return joined
-
-
 @dataclass(eq=False)
 class Refinement:
     """What refinement found.
@@ -526,7 +460,6 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
         revealing = revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
                                         margin=config.refine_margin,
                                         align_scale=config.depth_scale_align,
-                                        scale_reach=config.depth_scale_reach,
                                         workers=config.num_threads, margins=margins)
         return _Found(revealing)    # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
@@ -565,7 +498,6 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
             if band is not None:
                 bands = bounds(band)
         revealing, in_front = _in_front(state, reference, images, members, distances,
-                                        scale_depths=_scale_depths(state, depths),
                                         by_depth=last and _by_depth(config),
                                         margins=margins, band_bounds=bands)
         proposed &= revealing
@@ -663,32 +595,16 @@ def _overlay_reveal(depths: list, rgbs: list, renders) -> None:
 
 def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
     """The static reference as the tests read it: ``(depths, rgb_lo, rgb_hi)``, widened by
-    ``radii`` (``refine_tolerance``, at least ``edge_tolerance``) where set; ``rgb_hi`` None
-    where nothing is widened. The depths take the same radii with ``refine_tolerance_depth``,
-    else ``edge_tolerance`` alone."""
-    config = state.config
-    edge = config.edge_tolerance
-    if edge > 0:
-        radii = [max(int(r), edge) for r in
-                 ([radii] * len(reference) if np.isscalar(radii) else radii)]
+    ``radii`` (``refine_tolerance``) where set; ``rgb_hi`` None where nothing is widened. The
+    depths take the same radii with ``refine_tolerance_depth``, else stay as they are."""
     if np.isscalar(radii) and radii == 0:
         return reference, reference_rgb, None
-    # Without refine_tolerance_depth the depths take edge_tolerance alone: 0 returns them as
-    # they are.
-    depth_radii = radii if config.refine_tolerance_depth else edge
+    depth_radii = radii if state.config.refine_tolerance_depth else 0
     return tolerant_reference(reference, reference_rgb, radii, depth_radius=depth_radii)
 
 
-def _scale_depths(state, reference: list) -> list | None:
-    """The depths :func:`revealing_gaussians` measures each view's depth scale against: the
-    static reference at each Gaussian's own pixel under ``edge_tolerance`` (None: the depths it
-    tests against)."""
-    return reference if state.config.edge_tolerance > 0 else None
-
-
 def _in_front(state, reference: tuple, images: list, members: tuple,
-              distances: np.ndarray | None = None,
-              scale_depths: list | None = None, by_depth: bool = False,
+              distances: np.ndarray | None = None, by_depth: bool = False,
               margins: list | None = None, band_bounds: list | None = None) -> tuple:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
     (:func:`_tolerant`), and with ``by_depth`` those it keeps by depth alone (else None)."""
@@ -699,11 +615,9 @@ def _in_front(state, reference: tuple, images: list, members: tuple,
                               color_threshold=config.refine_color, images=images,
                               align_scale=config.depth_scale_align,
                               reference_rgbs_hi=rgb_hi,
-                              scale_reach=config.depth_scale_reach,
-                              color_grow=config.refine_color_grow,
                               workers=config.num_threads, members=members,
-                              color_distance=distances, scale_depths=scale_depths,
-                              by_depth=by_depth, margins=margins, band_bounds=band_bounds)
+                              color_distance=distances, by_depth=by_depth,
+                              margins=margins, band_bounds=band_bounds)
     return out if by_depth else (out, None)
 
 

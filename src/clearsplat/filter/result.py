@@ -120,12 +120,10 @@ class FilterResult:
         ``views_prepared``: camera preparations made (the number of views, plus those prepared
         again under ``config.view_memory``); ``views_derived``: those a later round took from
         the round before (restricted to the Gaussians it kept, not projected again);
-        ``views_peak_bytes``: most bytes the prepared
-        views held at once; ``views_skipped``: (view, removal) pairs left out because the view
-        sees none of the removal's Gaussians; ``views_pruned_bytes``: bytes the views held right
-        after ``config.prune_views`` pruned them (0 without it) (CPU only). With several
-        rounds (``config.rounds``) the counts and ``timings`` add up over the rounds and the
-        byte figures are the largest of any round.
+        ``views_peak_bytes``: most bytes the prepared views held at once; ``views_skipped``:
+        (view, removal) pairs left out because the view sees none of the removal's Gaussians.
+        With several rounds (``config.rounds``) the counts and ``timings`` add up over the
+        rounds and the byte figures are the largest of any round.
     """
 
     keep: np.ndarray

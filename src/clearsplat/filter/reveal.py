@@ -20,7 +20,7 @@ an edge. Its colour, opacity and depth are that view's. Where fewer than
 ``reveal_min_views`` views cover the pixel the evidence is too thin to outvote anything and
 the reference is R_i^-i itself.
 
-The proposal (similarity and support), the photometric alignment and refinement read this
+The proposal (similarity and support) and refinement read this
 reference; verification keeps R_i^-i, whose incremental renders it needs. Refinement's static
 reference is R_i^-i without the proposed Gaussians where the reference falls back to R_i^-i,
 and the reference itself elsewhere: it outvotes the other views' passers-by already.

@@ -1,14 +1,10 @@
 """Options that make the filter hold on what real backbones predict.
 
-Real feed-forward predictions disagree between views in ways that are not distractors: the
-input images differ in exposure and white balance, each view's depth has its own scale, and
-estimated cameras are off by a fraction of a degree. Each function here undoes one of those
-before the paper's comparisons, and each is switched by a :class:`FilterConfig` field (off in
-the ``paper`` presets):
+Real feed-forward predictions disagree between views in ways that are not distractors: each
+view's depth has its own scale, and estimated cameras are off by a fraction of a degree. Each
+function here undoes one of those before the paper's comparisons, and each is switched by a
+:class:`FilterConfig` field (off in the ``paper`` presets):
 
-- :func:`photometric_alignment` (``photometric_align``): a per-view, per-channel affine map that
-  brings the input image to the colours of what the other views render there; similarities,
-  colour tests and verification errors then compare like with like.
 - :func:`view_depth_scales` (``depth_scale_align``): the scale of each view's depths relative to
   what the other views render, so that "in front of the static surface" is judged in the
   view's own depth scale.
@@ -16,9 +12,6 @@ the ``paper`` presets):
   pixels a view's input and the other views' render are out of register, and the refinement's
   static reference widened by that radius (nearest surface, range of colours), so that static
   edges a few pixels off do not count as standing in front.
-- :func:`tolerant_images` (``verify_tolerance``): per pixel, the range of the input colours
-  within a small radius; a render colour inside that range counts as no error, so a small
-  misregistration (pose error, edge bleeding) does not count as evidence either way.
 - ``min_relative_score`` (in :mod:`clearsplat.filter.verify`): a test passes
   only if the removal takes away a large enough share of the error it touches.
 """
@@ -27,72 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["aligned_images", "photometric_alignment", "view_depth_scales", "tolerant_images",
-           "tolerant_reference", "box_extreme", "misregistration", "local_depth_scales"]
+__all__ = ["view_depth_scales", "tolerant_reference", "box_extreme", "misregistration"]
 
-#: Pixels used for a fit need the render this opaque.
+#: Pixels compared for a misregistration need the render this opaque.
 _FIT_MIN_ALPHA = 0.9
 #: A shift counts as misregistration when it lowers the mismatch by this share.
 _SHIFT_GAIN = 0.1
-#: Fewer usable pixels than this and the map stays the identity.
+#: Fewer usable pixels than this and nothing is measured (scale 1, no misregistration).
 _FIT_MIN_PIXELS = 64
-
-
-def _fit_affine(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Robust fit of ``y ~ a * x + b``: least squares, then again on the best 60 %."""
-    keep = np.ones(x.size, dtype=bool)
-    a, b = 1.0, 0.0
-    for _ in range(3):
-        xs, ys = x[keep], y[keep]
-        var = xs.var()
-        if xs.size < _FIT_MIN_PIXELS or var < 1e-8:
-            return 1.0, 0.0
-        a = float(((xs - xs.mean()) * (ys - ys.mean())).mean() / var)
-        b = float(ys.mean() - a * xs.mean())
-        r = np.abs(y - (a * x + b))
-        keep = r <= np.quantile(r, 0.6)
-    return a, b
-
-
-def photometric_alignment(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray,
-                          *, ignore: np.ndarray | None = None) -> np.ndarray:
-    """``image`` mapped per channel to the colours of ``render_rgb``, (H, W, 3) float32.
-
-    Fits ``render ~ a_c * image + b_c`` per channel over the pixels where the render is opaque
-    (accumulated opacity >= 0.9) and not in ``ignore``, robustly (the worst 40 % of the pixels,
-    where the views disagree for other reasons, are left out of the final fit), and applies it
-    to the whole image. Gains outside [0.5, 2] are treated as a failed fit (identity).
-
-    Parameters
-    ----------
-    image : (H, W, 3) float
-        The input image of a view.
-    render_rgb, render_alpha : (H, W, 3), (H, W) float
-        A render of the same camera from the other views' Gaussians (R_i^-i).
-    ignore : (H, W) bool, optional
-        Pixels left out of the fit.
-    """
-    ok = render_alpha >= _FIT_MIN_ALPHA
-    if ignore is not None:
-        ok &= ~ignore
-    out = np.array(image, dtype=np.float32, copy=True)
-    if ok.sum() < _FIT_MIN_PIXELS:
-        return out
-    x = np.asarray(image, dtype=np.float64)[ok]
-    y = np.asarray(render_rgb, dtype=np.float64)[ok]
-    for c in range(3):
-        a, b = _fit_affine(x[:, c], y[:, c])
-        if 0.5 <= a <= 2.0:
-            out[..., c] = (a * out[..., c] + b).astype(np.float32)
-    return out
-
-
-def aligned_images(images: list, excl: list, config) -> list:
-    """The input images the comparisons use: as given, or (``photometric_align``) each mapped
-    to the colours of its view's exclusion render R_i^-i (``excl``, RenderResults)."""
-    if not config.photometric_align:
-        return images
-    return [photometric_alignment(im, r.rgb, r.alpha) for im, r in zip(images, excl)]
 
 
 def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.ndarray]
@@ -125,13 +60,6 @@ def view_depth_scales(own_depths: list[np.ndarray], reference_depths: list[np.nd
         med = float(np.median(r))
         out.append((float(np.exp(med)), float(1.4826 * np.median(np.abs(r - med)))))
     return out
-
-
-def tolerant_images(image: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-channel minimum and maximum of ``image`` over a (2r+1)^2 window, (H, W, 3) each."""
-    image = np.asarray(image, dtype=np.float32)
-    return (box_extreme(image, int(radius), np.minimum),
-            box_extreme(image, int(radius), np.maximum))
 
 
 def misregistration(image: np.ndarray, render_rgb: np.ndarray, render_alpha: np.ndarray, *,
@@ -228,60 +156,3 @@ def tolerant_reference(depths: list[np.ndarray], rgbs: list[np.ndarray], radius,
         out_lo.append(np.where(missing, np.nan, lo))
         out_hi.append(np.where(missing, np.nan, hi))
     return out_d, out_lo, out_hi
-
-
-def local_depth_scales(own: np.ndarray, reference: np.ndarray, pixels: np.ndarray,
-                       height: int, width: int, *, cell: int = 16, reach: int = 2
-                       ) -> tuple[np.ndarray, float]:
-    """Per Gaussian, the median ratio of its view's depths to the reference depth around it,
-    and the spread of the ratio left after dividing by it.
-
-    Parameters
-    ----------
-    own, reference : (M,) float
-        Camera-i depth of each of view i's Gaussians and the reference depth at its pixel.
-    pixels : (M,) int
-        Its pixel (``row * width + col``), -1 where unknown.
-    height, width : int
-    cell : int
-        Side in pixels of the cells whose medians are taken first.
-    reach : int
-        The scale at a cell is the median of the cell medians within ``reach`` cells of it
-        (a window of ``(2 reach + 1) cell`` pixels, much larger than a distractor).
-
-    Returns
-    -------
-    scale : (M,) float
-        1 where nothing can be compared.
-    spread : float
-        Robust standard deviation (1.4826 MAD) of ``log(own / (scale * reference))``.
-    """
-    ok = (own > 0) & (reference > 0) & (pixels >= 0)
-    scale = np.ones(own.size)
-    if ok.sum() < _FIT_MIN_PIXELS:
-        return scale, 0.0
-    r = np.log(own[ok] / reference[ok])
-    gh, gw = -(-height // cell), -(-width // cell)
-    y, x = np.divmod(pixels[ok], width)
-    cid = (y // cell) * gw + x // cell
-    med = np.full(gh * gw, np.nan)
-    order = np.argsort(cid, kind="stable")
-    cs, rs = cid[order], r[order]
-    starts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
-    ends = np.r_[starts[1:], cs.size]
-    for a, b in zip(starts, ends):
-        med[cs[a]] = np.median(rs[a:b])
-    med = med.reshape(gh, gw)
-    local = np.full((gh, gw), np.nan)
-    for cy in range(gh):
-        for cx in range(gw):
-            win = med[max(0, cy - reach):cy + reach + 1, max(0, cx - reach):cx + reach + 1]
-            win = win[np.isfinite(win)]
-            if win.size:
-                local[cy, cx] = np.median(win)
-    glob = float(np.median(r))
-    local = np.where(np.isfinite(local), local, glob)
-    s = local.ravel()[cid]
-    res = r - s
-    scale[ok] = np.exp(s)
-    return scale, float(1.4826 * np.median(np.abs(res - np.median(res))))

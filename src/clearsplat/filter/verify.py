@@ -35,7 +35,6 @@ import numpy as np
 from ..scene import Scene
 from .association import ViewIndex
 from .refine import centre_pixels, member_pixels
-from .robust import tolerant_images
 
 __all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views", "top_views",
            "make_verifier", "exclusion_masks", "range_masks", "passes", "median_relative_score",
@@ -78,7 +77,7 @@ class Partial:
 def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: np.ndarray,
                           excluded: np.ndarray, epsilon: float,
                           removed_alpha: np.ndarray | None = None,
-                          min_alpha: float = 0.0, image_hi: np.ndarray | None = None) -> Partial:
+                          min_alpha: float = 0.0) -> Partial:
     """Sum of ``w * delta`` and ``w`` over the valid pixels of matching pixel arrays.
 
     Parameters
@@ -90,10 +89,6 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
     removed_alpha : (M,) float32, optional
         Accumulated opacity after the removal; pixels below ``min_alpha`` are holes that no
         remaining Gaussian explains, and are left out.
-    image_hi : (M, 3) float32, optional
-        With it, ``image`` and ``image_hi`` are per-channel lower and upper bounds of the input
-        (``FilterConfig.verify_tolerance``) and the error of a colour is its L1 distance to that
-        box (0 inside).
     """
     base = base_rgb.astype(np.float64)
     after = removed_rgb.astype(np.float64)
@@ -105,20 +100,8 @@ def change_weighted_terms(base_rgb: np.ndarray, removed_rgb: np.ndarray, image: 
     if not valid.any():
         return Partial()
     w = w[valid]
-    if image_hi is not None:
-        return _tolerant_terms(w, base[valid], after[valid], img[valid],
-                               image_hi[valid].astype(np.float64))
     e_before = np.abs(base[valid] - img[valid]).sum(-1)
     delta = e_before - np.abs(after[valid] - img[valid]).sum(-1)
-    return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
-
-
-def _tolerant_terms(w, base, after, lo, hi) -> Partial:
-    """``change_weighted_terms`` with the error measured to the box [lo, hi] per channel."""
-    def err(x):
-        return (np.maximum(lo - x, 0.0) + np.maximum(x - hi, 0.0)).sum(-1)
-    e_before = err(base)
-    delta = e_before - err(after)
     return Partial(float(np.sum(w * delta)), float(np.sum(w)), float(np.sum(w * e_before)))
 
 
@@ -135,17 +118,12 @@ class Verifier:
     incremental : bool
     hole_alpha : float
         Pixels whose accumulated opacity after a removal stays below this are left out.
-    images_hi : list of (H, W, 3) float32, optional
-        Upper bounds of the input colours; ``images`` are then the lower bounds.
     """
 
     def __init__(self, views, images: list[np.ndarray], *, epsilon: float,
-                 incremental: bool = True, hole_alpha: float = 0.0,
-                 images_hi: list[np.ndarray] | None = None):
+                 incremental: bool = True, hole_alpha: float = 0.0):
         self.views = views
         self.images = [im.reshape(-1, 3) for im in images]
-        # With upper bounds, ``images`` are the lower bounds of a tolerant error.
-        self.images_hi = None if images_hi is None else [im.reshape(-1, 3) for im in images_hi]
         self.epsilon = float(epsilon)
         self.incremental = incremental
         self.hole_alpha = float(hole_alpha)
@@ -162,8 +140,7 @@ class Verifier:
         return change_weighted_terms(base.rgb.reshape(-1, 3)[idx],
                                      after.rgb.reshape(-1, 3)[idx], self.images[j][idx],
                                      excluded.ravel()[idx], self.epsilon,
-                                     after.alpha.reshape(-1)[idx], self.hole_alpha,
-                                     self._hi(j, idx))
+                                     after.alpha.reshape(-1)[idx], self.hole_alpha)
 
     def score_view(self, j: int, base_keep: np.ndarray, base,
                    removals: list[np.ndarray], excluded: np.ndarray) -> list[Partial]:
@@ -195,20 +172,15 @@ class Verifier:
                 after = patch.rgb.reshape(-1, 3)[inside][order]
                 alpha = patch.alpha.reshape(-1)[inside][order]
                 out.append(change_weighted_terms(base_rgb[idx], after, self.images[j][idx],
-                                                 q[idx], self.epsilon, alpha, self.hole_alpha,
-                                                 self._hi(j, idx)))
+                                                 q[idx], self.epsilon, alpha, self.hole_alpha))
             return out
         for removal in removals:
             keep = base_keep.copy()
             keep[removal] = False
             r = self.views[j].render(keep=keep)
             out.append(change_weighted_terms(base_rgb, r.rgb.reshape(-1, 3), self.images[j], q,
-                                             self.epsilon, r.alpha.reshape(-1), self.hole_alpha,
-                                             self._hi(j, slice(None))))
+                                             self.epsilon, r.alpha.reshape(-1), self.hole_alpha))
         return out
-
-    def _hi(self, j: int, idx) -> np.ndarray | None:
-        return None if self.images_hi is None else self.images_hi[j][idx]
 
 
 def verification_views(scene: Scene, view: int, count: int, *, index: ViewIndex,
@@ -259,16 +231,11 @@ def top_views(seen: np.ndarray, view: int, count: int) -> list[int]:
 
 
 def make_verifier(state, images: list):
-    """The round's scorer against ``images`` (with ``verify_tolerance``, against the range of
-    input colours around each pixel), leaving out holes where ``verify_holes`` asks."""
+    """The round's scorer against ``images``, leaving out holes where ``verify_holes`` asks."""
     config = state.config
-    lo, hi = images, None
-    if config.verify_tolerance > 0:
-        bounds = [tolerant_images(im, config.verify_tolerance) for im in images]
-        lo, hi = [b[0] for b in bounds], [b[1] for b in bounds]
     skip = (state.num_views <= 2 if config.verify_holes == "auto"
             else config.verify_holes == "skip")
-    return state.backend.verifier(state.views, lo, hi, epsilon=config.epsilon,
+    return state.backend.verifier(state.views, images, epsilon=config.epsilon,
                                   hole_alpha=config.eta if skip else 0.0)
 
 
@@ -297,11 +264,11 @@ def range_masks(state, proposals) -> dict:
 
 
 def passes(total: Partial, config, per_view: list | None = None) -> bool:
-    """A test's verdict: score above ``min_score`` and, where ``min_relative_score`` asks for
+    """A test's verdict: a positive score and, where ``min_relative_score`` asks for
     it, a large enough share of the error it touches explained by the removal: of ``total``,
     or (``relative_score_pool="median"``, with ``per_view`` the terms of each verification
     view) the median of the views' own shares (:func:`median_relative_score`)."""
-    if not total.score > config.min_score:
+    if not total.score > 0.0:
         return False
     if config.min_relative_score <= 0:
         return True
@@ -471,7 +438,8 @@ def _additional_tests(state, second: list, q: list, verifier, renders) -> list:
 
 
 def _joint_test(state, first: list, survivors: list, q: list, verifier, renders) -> None:
-    """All ``survivors`` removed at once, from a base without the accepted first range."""
+    """All ``survivors`` removed at once, from each view's R_j^-j without the accepted first
+    range (as the additional test: each view j without its own Gaussians)."""
     config, views, own, v = state.config, state.views, state.own, state.num_views
     removed_first = np.zeros(state.n, dtype=bool)
     for c in first:
@@ -483,10 +451,7 @@ def _joint_test(state, first: list, survivors: list, q: list, verifier, renders)
         if not views.sees(j, joint):
             state.report("joint", j + 1, v)        # every term would be 0
             continue
-        if config.joint_base == "full":
-            base_keep, start = ~removed_first, renders.full[j]
-        else:
-            base_keep, start = ~(removed_first | own[j]), renders.excl[j]
+        base_keep, start = ~(removed_first | own[j]), renders.excl[j]
         total.add(_joint_terms(verifier, views[j], j, base_keep, jointly, joint, start, q[j]))
         state.report("joint", j + 1, v)
     ok = passes(total, config)

@@ -13,11 +13,6 @@ then prepares V - K views, where dropping the least recently used would prepare 
 
 Alongside, each view keeps a packed bit per Gaussian (1/8 byte, whether its camera sees it)
 so that verification can skip the views that a removal cannot change without preparing them.
-
-Once the filter knows which Gaussians any later render may leave out (:meth:`prune`), each
-view keeps only what those renders can reach (:meth:`~clearsplat.render.PreparedView.pruned`),
-and its bits then mark the Gaussians it still holds: a Gaussian hidden everywhere in a view
-cannot change it.
 """
 
 from __future__ import annotations
@@ -55,8 +50,6 @@ class PreparedViews:
     skipped : int
         (view, removal) pairs the filter left out because the view sees none of the removal's
         Gaussians.
-    pruned_bytes : int
-        Bytes the kept views held right after :meth:`prune` (0 before).
     """
 
     def __init__(self, num_gaussians: int, cameras, make: Callable, *, budget: int | None,
@@ -73,8 +66,6 @@ class PreparedViews:
         self.peak_bytes = 0
         self._largest = 0           # bytes of the largest view prepared so far
         self.skipped = 0
-        self.pruned_bytes = 0
-        self._floor: Callable | None = None
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -96,8 +87,6 @@ class PreparedViews:
         self._largest = max(self._largest, view.memory_bytes)
         if self._seen[i] is None:
             self._seen[i] = self._bits(view)
-        if self._floor is not None:
-            view = self._pruned(i, view)
         self._kept[i] = view
         self._fit(i)
         return view
@@ -124,23 +113,6 @@ class PreparedViews:
         seen = np.zeros(self.num_gaussians, dtype=bool)
         seen[view.visible] = True
         return np.packbits(seen)
-
-    def _pruned(self, i: int, view):
-        floor = self._floor(i)
-        if floor is None:
-            return view
-        view = view.pruned(floor)
-        self._seen[i] = self._bits(view)
-        return view
-
-    def prune(self, floor: Callable) -> None:
-        """From now on hold each view pruned to ``floor(i)`` ((N,) bool, the Gaussians every
-        later render of view ``i`` keeps; None: that view is not pruned), the views held now
-        included."""
-        self._floor = floor
-        for i in list(self._kept):
-            self._kept[i] = self._pruned(i, self._kept[i])
-        self.pruned_bytes = self.held_bytes
 
     def make_room(self, nbytes: int) -> None:
         """Drop the most recently prepared views until those kept and ``nbytes`` more fit the
@@ -183,8 +155,7 @@ class PreparedViews:
         """The counters of :attr:`FilterResult.stats <clearsplat.filter.FilterResult.stats>`;
         ``derived``: views a later round took from the round before."""
         return {"views_prepared": self.prepared, "views_derived": derived,
-                "views_peak_bytes": self.peak_bytes, "views_skipped": self.skipped,
-                "views_pruned_bytes": self.pruned_bytes}
+                "views_peak_bytes": self.peak_bytes, "views_skipped": self.skipped}
 
     def sees_any(self, i: int, gaussians: np.ndarray) -> bool:
         """Whether camera ``i`` sees any of ``gaussians`` (int indices), without preparing it.
