@@ -61,7 +61,8 @@ import numpy as np
 
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
-from clearsplat.filter.association import ViewIndex, region_gaussians
+from clearsplat.filter import reveal as rv
+from clearsplat.filter.association import MIN_WEIGHT, ViewIndex, region_gaussians
 from clearsplat.filter.neighbours import dense_options, view_plan
 from clearsplat.filter.refine import member_pixels, widened_margin
 from clearsplat.filter.reveal import reveal_plan, reveal_reference
@@ -85,14 +86,13 @@ def _reveal_depths(scene, config):
     allowed = np.abs(views[:, None] - views[None]) > config.leave_out
     if plan is not None and plan.hoods is not None:
         allowed &= np.array(plan.hoods)
-    neighbours_of = reveal_plan(scene, count=config.reveal_views,
-                                max_angle=config.reveal_max_angle, allowed=allowed)
+    neighbours_of = reveal_plan(scene, count=rv.VIEWS, max_angle=rv.MAX_ANGLE,
+                                allowed=allowed)
     out = []
     for v, (cam, others) in enumerate(zip(scene.cameras, neighbours_of)):
         excl = render(scene, cam, keep=np.abs(scene.view_id - v) > config.leave_out)
         ref, valid = reveal_reference(prepare(scene, cam), [scene.view_id == j for j in others],
-                                      excl, quantile=config.reveal_quantile,
-                                      min_views=config.reveal_min_views)
+                                      excl, quantile=rv.QUANTILE, min_views=rv.MIN_VIEWS)
         out.append((ref.depth.ravel(), valid.ravel()))
     return out
 
@@ -224,7 +224,7 @@ def main(argv=None) -> int:
     result = filter_distractors(scene, config=config)
     margins: dict = {}
     reveal = _reveal_depths(scene, config)
-    step = _steps(scene, result, truth, config.association_min_weight, config.refine_margin,
+    step = _steps(scene, result, truth, MIN_WEIGHT, config.refine_margin,
                   config.depth_scale_align and config.refine == "static-depth", margins,
                   reveal)
     missed = truth & result.keep

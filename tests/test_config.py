@@ -130,12 +130,12 @@ def test_cross_field_checks():
 
 def test_spec_descriptions():
     assert FIELD_SPECS["eta"].allowed() == "a number in [0, 1]"
-    assert FIELD_SPECS["association_min_weight"].allowed() == "a number in (0, 1]"
     assert FIELD_SPECS["num_verify_views"].allowed() == "an integer >= 1"
     assert FIELD_SPECS["num_threads"].allowed() == "an integer >= 1 or None"
     assert FIELD_SPECS["verify"].allowed() == "true or false"
     assert FIELD_SPECS["refine"].allowed() == "one of 'static-depth', 'depth', 'none'"
     assert FieldSpec("number").allowed() == "a finite number"
+    assert FieldSpec("number", 0.0, 1.0, low_open=True).allowed() == "a number in (0, 1]"
 
 
 def test_paper_preset_without_dino_says_what_to_do_in_python(monkeypatch):

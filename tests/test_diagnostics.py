@@ -93,15 +93,17 @@ def test_reveal_depths_are_the_filters_reveal_references():
     assert any(valid.any() for _, valid in out)
 
 
-def test_reveal_depths_leave_out_the_views_beyond_the_parallax_limit():
+def test_reveal_depths_leave_out_the_views_beyond_the_parallax_limit(monkeypatch):
     # Six views on a 90-degree arc round the object, about 15 degrees apart: a 20-degree limit
     # leaves each view its one or two adjacent views.
+    from clearsplat.filter import reveal
     from clearsplat.filter.reveal import parallax_angles, typical_depths
 
     world = make_world("object", num_views=6, seed=0, height=32, width=48)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
-    config = FilterConfig(reveal_max_angle=20.0, reveal_min_views=1)
-    out = _script()._reveal_depths(scene, config)
+    monkeypatch.setattr(reveal, "MAX_ANGLE", 20.0)
+    monkeypatch.setattr(reveal, "MIN_VIEWS", 1)
+    out = _script()._reveal_depths(scene, FilterConfig())
     near = parallax_angles(scene.cameras, typical_depths(scene)) <= 20.0
     hoods = _assert_reveal_depths(scene, out, near, 1)
     for v, others in enumerate(hoods):

@@ -1,5 +1,5 @@
 """Later rounds leave out of verification the pixels where earlier rounds removed a verifying
-view's own Gaussians (``FilterConfig.verify_mask_removed``): its input image still shows the
+view's own Gaussians: its input image still shows the
 removed distractor there."""
 
 import numpy as np
@@ -81,7 +81,7 @@ def _rounds_seen(monkeypatch):
 
 def test_a_later_round_leaves_out_what_the_earlier_removed(street, extractor, monkeypatch):
     seen = _rounds_seen(monkeypatch)
-    cfg = FilterConfig(rounds=2, verify_mask_removed=True)
+    cfg = FilterConfig(rounds=2)
     out = filter_distractors(street, config=cfg, extractor=extractor)
     first = [c for c in out.candidates if c.round == 1 and c.accepted]
     assert first and len(seen) == 2 and seen[0] is None
@@ -91,17 +91,10 @@ def test_a_later_round_leaves_out_what_the_earlier_removed(street, extractor, mo
     want = _removed_pixels_by_loop(street, ~removed_first)
     for got, w in zip(seen[1], want):
         assert np.array_equal(got, w)
-    # Off: no round is given any.
-    seen.clear()
-    filter_distractors(street, config=cfg.replace(verify_mask_removed=False),
-                       extractor=extractor)
-    assert seen == [None, None]
 
 
-def test_one_round_is_unchanged(street, extractor):
-    """With one round there is nothing removed before: the option changes nothing."""
-    a = filter_distractors(street, config=FilterConfig(rounds=1), extractor=extractor)
-    b = filter_distractors(street, config=FilterConfig(rounds=1, verify_mask_removed=True),
-                           extractor=extractor)
-    assert np.array_equal(a.keep, b.keep)
-    assert [c.record() for c in a.candidates] == [c.record() for c in b.candidates]
+def test_one_round_is_unchanged(street, extractor, monkeypatch):
+    """With one round there is nothing removed before: no round is given any pixels."""
+    seen = _rounds_seen(monkeypatch)
+    filter_distractors(street, config=FilterConfig(rounds=1), extractor=extractor)
+    assert seen == [None]

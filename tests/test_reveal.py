@@ -245,7 +245,7 @@ def test_the_torch_backend_makes_the_native_decisions(video):
 
 
 def test_below_min_views_neighbours_the_output_is_the_composite_one():
-    # At four views each view has three others: with reveal_min_views=4 no pixel takes the
+    # At four views each view has three others: with reveal.MIN_VIEWS = 4 no pixel takes the
     # reveal reference, and every decision is the composite's.
     world = make_world("object", num_views=4, seed=1, height=48, width=80)
     scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
@@ -259,7 +259,7 @@ def test_below_min_views_neighbours_the_output_is_the_composite_one():
             == [(c.view, c.accepted, c.reason) for c in base.candidates])
 
 
-def test_views_beyond_the_parallax_limit_are_left_out_of_the_reveal_reference():
+def test_views_beyond_the_parallax_limit_are_left_out_of_the_reveal_reference(monkeypatch):
     # Eight views on a 90-degree arc round the object: neighbours lie about 11, 21, 31...
     # degrees apart. A limit of 5 degrees leaves none near enough, so the decisions are the
     # composite's; without a limit the far views take part and decide otherwise.
@@ -271,11 +271,14 @@ def test_views_beyond_the_parallax_limit_are_left_out_of_the_reveal_reference():
         r = filter_distractors(scene, config=config, extractor=extractor)
         return r.keep, [(c.view, c.accepted, c.reason) for c in r.candidates], r.timings
 
+    from clearsplat.filter import reveal
     base = decisions(FilterConfig(reveal_reference="composite"))
-    near = decisions(FilterConfig(reveal_max_angle=5.0))
+    monkeypatch.setattr(reveal, "MAX_ANGLE", 5.0)
+    near = decisions(FilterConfig())
     np.testing.assert_array_equal(near[0], base[0])
     assert near[1] == base[1]
-    unlimited = decisions(FilterConfig(reveal_max_angle=None))
+    monkeypatch.setattr(reveal, "MAX_ANGLE", None)
+    unlimited = decisions(FilterConfig())
     assert unlimited[1] != base[1]
 
 
@@ -306,7 +309,7 @@ def test_the_paper_presets_compare_with_the_composite():
         assert FilterConfig.preset(name).reveal_reference == "composite"
     for name in ("default", "exact", "fast", "video"):
         config = FilterConfig.preset(name)
-        assert config.reveal_reference == "quantile" and config.reveal_max_angle == 30.0
+        assert config.reveal_reference == "quantile"
     assert FilterConfig.preset("video").leave_out == 1
 
 

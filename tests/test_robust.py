@@ -17,7 +17,15 @@ from clearsplat.synth import make_world
 from clearsplat.synth.realism import realistic_reconstruction
 
 NEW = dict(depth_scale_align=True, refine_tolerance=2, min_relative_score=0.3, refine_passes=2,
-           expand_connected=True, refine_tolerance_depth=False, rounds=2)
+           expand_connected=True, rounds=2)
+
+
+@pytest.fixture
+def verify_removed_pixels(monkeypatch):
+    """A later round verifies the pixels where the rounds before removed a view's own
+    Gaussians as any other (a second run on the kept scene cannot know them)."""
+    from clearsplat.filter import pipeline
+    monkeypatch.setattr(pipeline, "removed_pixels", lambda scene, removed: None)
 
 
 def test_view_depth_scales_is_the_median_ratio():
@@ -78,9 +86,9 @@ def test_tolerant_reference_takes_its_own_depth_radius():
     np.testing.assert_array_equal(two[1][1], tolerant_reference([depth], [rgb], 2)[1][0])
 
 
-def test_tolerant_takes_the_depth_radii_only_with_refine_tolerance_depth():
-    """``_tolerant``: the colour radii as measured; the depth radii the same with
-    ``refine_tolerance_depth``, else none; radius 0 changes nothing."""
+def test_tolerant_widens_the_colours_by_the_measured_radii_and_not_the_depths():
+    """``_tolerant``: the colour radii as measured, the depths as they are (a tolerant depth
+    test drops small objects on sloping floors); radius 0 changes nothing."""
     from types import SimpleNamespace
 
     from clearsplat.filter.refine import _tolerant
@@ -88,18 +96,13 @@ def test_tolerant_takes_the_depth_radii_only_with_refine_tolerance_depth():
     depths = [rng.uniform(1, 2, (6, 9)) for _ in range(2)]
     rgbs = [rng.uniform(0, 1, (6, 9, 3)) for _ in range(2)]
     measured = [0, 3]
-    for tol_depth in (False, True):
-        state = SimpleNamespace(config=FilterConfig(refine_tolerance_depth=tol_depth))
-        d, lo, hi = _tolerant(state, depths, rgbs, measured)
-        colour = measured
-        depth = colour if tol_depth else [0, 0]
-        for v in range(2):
-            np.testing.assert_array_equal(
-                d[v], tolerant_reference([depths[v]], [rgbs[v]], depth[v])[0][0])
-            ref = tolerant_reference([depths[v]], [rgbs[v]], colour[v])
-            np.testing.assert_array_equal(lo[v], ref[1][0])
-            np.testing.assert_array_equal(hi[v], ref[2][0])
     state = SimpleNamespace(config=FilterConfig())
+    d, lo, hi = _tolerant(state, depths, rgbs, measured)
+    for v in range(2):
+        np.testing.assert_array_equal(d[v], depths[v])
+        ref = tolerant_reference([depths[v]], [rgbs[v]], measured[v])
+        np.testing.assert_array_equal(lo[v], ref[1][0])
+        np.testing.assert_array_equal(hi[v], ref[2][0])
     assert _tolerant(state, depths, rgbs, 0) == (depths, rgbs, None)
 
 
@@ -181,20 +184,18 @@ def test_median_pool_neither_carried_nor_vetoed_by_one_view():
         total.add(p)
     assert total.score > 0 and total.relative_score < 0.2          # vetoed when pooled
     assert median_relative_score(views) == pytest.approx(0.46)     # the middle of 3 views
-    summed = FilterConfig(relative_score_pool="sum")
-    median = FilterConfig()                                        # the default pools by median
-    assert median.relative_score_pool == "median"
-    assert not passes(total, summed, views) and passes(total, median, views)
+    median = FilterConfig()              # the individual test's terms: the median of the views
+    assert not passes(total, median) and passes(total, median, views)
     # One view alone carrying a candidate that the others find no better: pooled it passes,
     # the median of the views' shares does not.
     carried = [Partial(30.0, 40.0, 40.0), Partial(0.1, 10.0, 20.0), Partial(0.05, 10.0, 20.0)]
     total = Partial()
     for p in carried:
         total.add(p)
-    assert passes(total, summed, carried) and not passes(total, median, carried)
+    assert passes(total, median) and not passes(total, median, carried)
     # The score condition stays pooled; without min_relative_score the pool does not matter.
     assert not passes(Partial(-1.0, 2.0, 2.0), median, [Partial(3.0, 1.0, 3.0)] * 2)
-    loose = FilterConfig(relative_score_pool="median", min_relative_score=0.0)
+    loose = FilterConfig(min_relative_score=0.0)
     assert passes(total, loose, [Partial(-1.0, 1.0, 1.0)] * 3)
     assert median_relative_score([]) == 0.0 and median_relative_score([Partial()]) == 0.0
     # Views where the removal changes a few pixels (under a twentieth of the weight of the view
@@ -217,8 +218,6 @@ def test_median_pool_neither_carried_nor_vetoed_by_one_view():
     # At a twentieth of the heaviest weight a view votes: the median of 0.7, 0.05 and -0.5.
     counted = Partial(0.05 * 1.5, 1.5, 1.5)
     assert median_relative_score([heavy, counted, against]) == pytest.approx(0.05)
-    with pytest.raises(ClearsplatError):
-        FilterConfig(relative_score_pool="mean")
 
 
 def test_depth_scale_alignment_undoes_a_view_scale_bias():
@@ -243,9 +242,9 @@ def test_options_are_validated_and_off_in_the_paper_presets():
     for name in ("paper", "paper-local"):
         cfg = FilterConfig.preset(name)
         assert not cfg.depth_scale_align and cfg.refine_tolerance == 0
-        assert cfg.min_relative_score == 0.0 and cfg.relative_score_pool == "sum"
+        assert cfg.min_relative_score == 0.0
         assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
-        assert not cfg.expand_connected and cfg.refine_tolerance_depth
+        assert not cfg.expand_connected
         assert cfg.rounds == 1
     for field, bad in (("refine_tolerance", -1), ("refine_tolerance", 1.5),
                        ("refine_tolerance", True), ("min_relative_score", 1.0),
@@ -267,7 +266,7 @@ def test_options_off_give_the_filter_without_them(soft_scene):
     scene, _ = soft_scene
     ex = get_extractor("local")
     off = dict(depth_scale_align=False, refine_tolerance=0, min_relative_score=0.0,
-               refine_passes=1, expand_connected=False, refine_tolerance_depth=True, rounds=1)
+               refine_passes=1, expand_connected=False, rounds=1)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -285,7 +284,6 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
                                                          depth_scale_align=False,
                                                          refine_passes=1,
                                                          expand_connected=False,
-                                                         refine_tolerance_depth=True,
                                                          rounds=1),
                               extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
@@ -408,35 +406,20 @@ def test_revealing_by_depth_is_the_test_without_colours():
     assert not (depth & ~full).any() and (full & ~depth).any() and depth.any()
 
 
-def test_expansion_by_depth_only_drops_what_the_colour_test_alone_kept(soft_scene):
-    """``expand_color=False`` decides every candidate as before and expands each to a subset
-    of its former expansion that still holds the candidate's own Gaussians (all of them:
-    ``verify_hidden`` off)."""
-    scene, _ = soft_scene
-    ex = get_extractor("local")
-    cfg = FilterConfig(rounds=1, verify_hidden=None)
-    on = filter_distractors(scene, config=cfg, extractor=ex)
-    off = filter_distractors(scene, config=cfg.replace(expand_color=False), extractor=ex)
-    assert [c.scores.get("individual") for c in on.candidates] == \
-        [c.scores.get("individual") for c in off.candidates]
-    dropped = 0
-    for a, b in zip(on.candidates, off.candidates):
-        assert (a.expanded is None) == (b.expanded is None)
-        if b.expanded is not None:
-            assert set(b.gaussians) <= set(b.expanded) <= set(a.expanded)
-            dropped += len(a.expanded) - len(b.expanded)
-    assert dropped > 0
-
-
-def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_scene):
+def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_scene,
+                                                                       monkeypatch):
     """``expand_color_bound`` decides every candidate's individual test as before and expands
-    each to a set between the depth-only expansion (``expand_color=False``) and the one
-    without a bound, which holds the candidate's own Gaussians."""
+    each to a set between the depth-only expansion (no Gaussian taken for its colour alone)
+    and the one without a bound, which holds the candidate's own Gaussians."""
+    from clearsplat.filter import refine as refine_stage
     scene, _ = soft_scene
     ex = get_extractor("local")
     cfg = FilterConfig(rounds=1, verify_hidden=None)
-    runs = [filter_distractors(scene, config=c, extractor=ex) for c in
-            (cfg.replace(expand_color=False), cfg, cfg.replace(expand_color_bound=None))]
+    bounded = filter_distractors(scene, config=cfg, extractor=ex)
+    every = filter_distractors(scene, config=cfg.replace(expand_color_bound=None), extractor=ex)
+    monkeypatch.setattr(refine_stage, "beyond_static_colors",
+                        lambda distances, *args: np.zeros(distances.shape, dtype=bool))
+    runs = [filter_distractors(scene, config=cfg, extractor=ex), bounded, every]
     assert cfg.expand_color_bound == 0.99
     scores = [[c.scores.get("individual") for c in r.candidates] for r in runs]
     assert scores[0] == scores[1] == scores[2]
@@ -481,10 +464,10 @@ def test_beyond_static_colors_matches_the_definition():
                 np.testing.assert_array_equal(got[m], selected[m] & (distances[m] > top))
 
 
-def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):
+def test_a_depth_test_without_tolerance_keeps_a_superset():
     """Where the reference has no holes the nearest surface within the radius is never farther
-    than the one at the pixel, so judging depth at the pixel (``refine_tolerance_depth=False``)
-    keeps every Gaussian the tolerant depth test keeps, and more."""
+    than the one at the pixel, so judging depth at the pixel (as the refinement does) keeps
+    every Gaussian the tolerant depth test keeps, and more."""
     world = make_world("object", num_views=3, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "depth", seed=0, clean=True)
     index = ViewIndex(scene)
@@ -496,13 +479,6 @@ def test_a_depth_test_without_tolerance_keeps_a_superset(soft_scene):
     tol = revealing_gaussians(scene, index, near, **kw)
     own = revealing_gaussians(scene, index, ref, **kw)
     assert not (tol & ~own).any() and (own & ~tol).sum() > 0
-    # Without a radius the option changes nothing.
-    s, _ = soft_scene
-    ex = get_extractor("local")
-    cfg = FilterConfig(refine_tolerance=0)
-    a = filter_distractors(s, config=cfg.replace(refine_tolerance_depth=True), extractor=ex)
-    b = filter_distractors(s, config=cfg.replace(refine_tolerance_depth=False), extractor=ex)
-    np.testing.assert_array_equal(a.keep, b.keep)
 
 
 def _two_runs(scene, one, ex):
@@ -517,8 +493,9 @@ def _two_runs(scene, one, ex):
 
 
 def _two_rounds_are_two_runs(scene, one, ex):
-    """``one.replace(rounds=2)`` on ``scene`` against :func:`_two_runs` (``one`` without
-    ``verify_mask_removed``, which only a later round can apply): the same keep mask,
+    """``one.replace(rounds=2)`` on ``scene`` against :func:`_two_runs` (with the pixels of
+    what the rounds before removed verified as any other, which only a later round can leave
+    out): the same keep mask,
     and the second round's candidates those of the second run, with their scores and reasons.
     Returns ``(first, second, both)``."""
     first, _, second, expect = _two_runs(scene, one, ex)
@@ -531,16 +508,16 @@ def _two_rounds_are_two_runs(scene, one, ex):
     return first, second, both
 
 
-def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene):
+def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene,
+                                                              verify_removed_pixels):
     """``rounds=2`` is the filter run once, then run again on the scene without what it
     removed, the second run's removals and candidates mapped back to the whole scene."""
     scene, _ = soft_scene
     ex = get_extractor("local")
     # Without min_relative_score and color_explained the first round leaves something for the
-    # second on this small scene. With verify_mask_removed a later round also leaves out what
-    # the first removed from verification, which a second run cannot know: off here.
-    one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None,
-                       verify_mask_removed=False)
+    # second on this small scene. A later round also leaves out what the first removed from
+    # verification, which a second run cannot know: not here (verify_removed_pixels).
+    one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None)
     first, kept, second, expect = _two_runs(scene, one, ex)
     assert not second.keep.all(), "the scene should have something for a second round to find"
     stages = []
@@ -684,7 +661,7 @@ def test_second_round_memory_check_counts_what_the_first_hands_on(soft_scene, mo
     assert 10**6 < second and second - 10**6 >= 0.5 * held   # round 1's views, at least
 
 
-def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
+def test_later_round_renders_on_images_not_a_multiple_of_the_tile(verify_removed_pixels):
     """The second round re-composites only the tiles the removals touched and takes the rest
     from the first round's renders; on a 50x71 image the last tiles are partial."""
     world = make_world("street", num_views=3, seed=1, height=50, width=71)
@@ -692,18 +669,18 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile():
     ex = get_extractor("local")
     # Without min_relative_score the first round leaves something for the second on this
     # small scene.
-    one = FilterConfig(rounds=1, min_relative_score=0.0, verify_mask_removed=False)
+    one = FilterConfig(rounds=1, min_relative_score=0.0)
     _, second, res = _two_rounds_are_two_runs(scene, one, ex)
     assert res.stats["views_derived"] == scene.num_views
     assert len(second.candidates) > 0
 
 
-def test_rounds_with_color_explained_are_runs_on_what_each_kept():
+def test_rounds_with_color_explained_are_runs_on_what_each_kept(verify_removed_pixels):
     """``color_explained`` acts within each round, on that round's Gaussians."""
     world = make_world("street", num_views=8, seed=0, height=64, width=112)
     scene, _ = realistic_reconstruction(world, "pose", seed=0)
     ex = get_extractor("local")
-    one = FilterConfig(rounds=1, color_explained=0.9, verify_mask_removed=False)
+    one = FilterConfig(rounds=1, color_explained=0.9)
     first, second, _ = _two_rounds_are_two_runs(scene, one, ex)
     assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
 

@@ -47,9 +47,7 @@ ABLATIONS = {
     "holes-count": "default+verify_holes=count",
     "no-depth-scale": "default+depth_scale_align=false",
     "no-refine-tol": "default+refine_tolerance=0",
-    "tol-depth": "default+refine_tolerance_depth=true",
     "no-rel-score": "default+min_relative_score=0",
-    "sum-views": "default+relative_score_pool=sum",
     "one-refine-pass": "default+refine_passes=1",
     "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
@@ -57,11 +55,8 @@ ABLATIONS = {
     "no-color-explained": "default+color_explained=null",
     "no-silhouettes": "default+silhouette_explained=null",
     "no-band-color": "default+widened_band_color=null",
-    "silhouettes-reliable": "default+silhouette_unreliable=false",
     "expand-any-color": "default+expand_color_bound=null",
-    "keep-removed-px": "default+verify_mask_removed=false",
     "remove-hidden": "default+verify_hidden=null",
-    "hidden-fixed": "default+verify_hidden_widen=false",
     "composite": "default+reveal_reference=composite",
     # The paper's own ablations, on the default.
     "rgb": "default+features=rgb",
@@ -71,8 +66,6 @@ ABLATIONS = {
     # Options that are off by default, switched on.
     "refine-tol=2": "default+refine_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
-    "+expand-by-depth": "default+expand_color=false",
-    "+reveal-any-angle": "default+reveal_max_angle=null",
     "video": "video",
 }
 

@@ -70,6 +70,12 @@ def view_members(scene: Scene, *, narrow: bool = False) -> list[np.ndarray]:
     return [order[bounds[i]:bounds[i + 1]] for i in range(scene.num_views)]
 
 
+#: A Gaussian without ``pixel_id`` belongs to a region where its blending weight (alpha * T),
+#: compositing only its view's Gaussians from that view's camera, reaches this at some pixel of
+#: the region: the front surface of that view's prediction.
+MIN_WEIGHT = 0.05
+
+
 def _narrow(values: np.ndarray, bound: int) -> np.ndarray:
     """``values`` (known to lie in [-1, ``bound``]) as int32 where ``bound`` fits, else as
     they are."""
@@ -77,7 +83,7 @@ def _narrow(values: np.ndarray, bound: int) -> np.ndarray:
 
 
 def region_gaussians(scene: Scene, view: int, pixels: np.ndarray, *, index: ViewIndex,
-                     min_weight: float = 0.05, prepared=None) -> np.ndarray:
+                     min_weight: float = MIN_WEIGHT, prepared=None) -> np.ndarray:
     """Gaussians of ``view`` that a pixel region maps to [C_k], sorted int64 indices.
 
     Pixel-aligned Gaussians map through their ``pixel_id`` (several per pixel allowed). The
@@ -122,7 +128,7 @@ class RegionMap:
 
     def __init__(self, state):
         self.scene, self.index, self.views = state.scene, state.index, state.views
-        self.min_weight = state.config.association_min_weight
+        self.min_weight = MIN_WEIGHT
         self.loose = [bool((p < 0).any()) for p in self.index.pixels]
 
     def __call__(self, view: int, pixels: np.ndarray) -> np.ndarray:

@@ -196,9 +196,6 @@ class FilterConfig:
         removal. ``"skip"`` leaves them out. ``"auto"`` counts them unless the scene has only two
         views, where every removal opens holes in the one verifying view (rendered without its
         own Gaussians) and counting them would forbid any removal.
-    association_min_weight : float
-        For scenes without ``pixel_id``: a Gaussian of the candidate's view belongs to a region when
-        its blending weight (alpha * T) at some pixel of the region reaches this.
     incremental : bool
         Verify by re-compositing only the tiles a candidate touches (exact); False re-renders whole
         images (slow reference path).
@@ -224,12 +221,6 @@ class FilterConfig:
         tests at the Gaussian's own pixel. ``"auto"``: per view, the misregistration measured
         between its input and its exclusion render
         (:func:`clearsplat.filter.robust.misregistration`; 0 where the views agree).
-    refine_tolerance_depth : bool
-        Whether ``refine_tolerance`` applies to the depth test too (the nearest surface within
-        the radius). False: only the colour test is tolerant and "in front" is judged at the
-        Gaussian's own pixel: the nearest surface within a few pixels of a small object on a
-        sloping floor is the floor in front of it, so the tolerant depth test drops most of
-        such an object.
     min_relative_score : float
         Also require each test's removal to take away more than this share of the
         change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
@@ -237,18 +228,6 @@ class FilterConfig:
         explains most of the error where it changes the render; static content that the views
         merely place a little differently (pose error, depth scale) trades one error for another
         and scores a small share even when its score is positive. Default 0.2; 0: the paper.
-    relative_score_pool : {"sum", "median"}
-        How the individual test pools its verification views for ``min_relative_score``.
-        ``"sum"``: the share over all of them together (one view with a large change decides
-        alone, either way). ``"median"``: the median of each view's own share, over the views
-        where the removal changes at least a twentieth of what it changes in the view it
-        changes most (a view where it touches a few pixels has a share that says nothing;
-        with fewer than three such views, the pooled share), so that one view neither carries
-        a candidate (a surface only the candidate's view sees, smeared over another view's
-        render) nor vetoes it (pixels that neither render explains, where that view's own
-        distractor or a misplaced surface stands). The score condition (a positive score) stays
-        pooled over the views, as in the paper. Default ``"median"``; the paper has no share
-        condition (``min_relative_score=0``), so the pool does not matter there.
     color_explained : float or None
         Reject a candidate whose removal would take away only what the other views already show
         where its view shows it, within that view's misregistration: static content out of
@@ -273,13 +252,6 @@ class FilterConfig:
         distance (as for ``color_explained``) is at most this quantile of the distances of its
         view's Gaussians outside every proposal region. Applies with
         ``refine="static-depth"``. Default 0.75; None: off (the paper has no refinement).
-    silhouette_unreliable : bool
-        With ``silhouette_explained``: whether the pixels of the silhouettes it keeps stay
-        among those verification leaves out (``verify_mask``), as every pixel of a Gaussian in
-        front of the static reference does: a flying pixel mixes the distractor's colour into
-        the surface's, so comparing another view's render with it says nothing either way.
-        True by default (docs/method.md); False: only the pixels of the Gaussians the
-        refinement finally keeps are left out.
     widened_band_color : float or None
         With ``depth_scale_align``: where a view's depth noise widens its refinement margin, a
         Gaussian in front of the static reference by more than ``refine_margin`` but less than
@@ -301,18 +273,9 @@ class FilterConfig:
         condition holds there: the support is judged per patch, and a distractor's patches
         where the other views render little, or at a similar mean depth, drop out of the
         paper's expansion. False: the paper (dilation within the support only).
-    expand_color : bool
-        Whether the expansion may take, beyond the candidate's own Gaussians, Gaussians that
-        the refinement keeps for their colour alone (``refine_color``: a different colour
-        from the static reference while touching its surface). True: the expansion takes
-        every Gaussian the refinement keeps. False: around the candidate's region only those
-        in front of the static reference by depth: the soft edge of a distractor stands in
-        front of what lies behind it, while a static surface beside it that the other views
-        render in another colour (misregistration, an occlusion edge) touches the
-        reference. Without ``refine_color`` both are the same.
     expand_color_bound : float or None
-        With ``expand_color``: beyond the candidate's own Gaussians, a Gaussian the refinement
-        keeps for its colour alone joins the expansion only where its colour distance (as for
+        Beyond the candidate's own Gaussians, a Gaussian the refinement keeps for its colour
+        alone joins the expansion only where its colour distance (as for
         ``color_explained``) exceeds this quantile of the distances of its view's Gaussians
         outside every proposal region. Around a distractor the dilation reaches static
         surfaces whose fine texture the other views render a pixel or two off (fences,
@@ -331,15 +294,6 @@ class FilterConfig:
         0.58 dB at 16 views, 0.18 dB at 8 and 0.02 dB at 4, and at 8 views it finds most of
         the passers-by that ``min_relative_score`` rejects in the first round, once the other
         views' passers-by that their removal uncovered are gone). 1: the paper (a single run).
-    verify_mask_removed : bool
-        In a later round (``rounds``), whether each verifying view also leaves out of
-        verification the pixels where the earlier rounds removed its own Gaussians. Its input
-        image still shows the distractor that was removed there, so a candidate of another
-        view whose removal reveals the surface behind it would be compared with that
-        distractor, and one whose removal changes those pixels is judged against a transient,
-        not the scene. True by default (measured: at 8 views it finds as much or more in
-        every scenario of the realism benchmark and removes as much of the static scene,
-        docs/method.md); False: those pixels count. With one round it changes nothing.
     verify_hidden : float or None
         An accepted candidate removes only the Gaussians of hat C_k that at least one of its
         verifying views sees: whose centre, projected into that view, lies at most this share
@@ -349,13 +303,6 @@ class FilterConfig:
         stays (a surface only the candidate's view sees, such as the side of an object the
         other cameras face away from, goes with a candidate only where it shows). None: every
         Gaussian of hat C_k (the paper).
-    verify_hidden_widen : bool
-        With ``verify_hidden``: the margin for a Gaussian and a verifying view is at least the
-        margin of refinement's depth test in either view, which ``depth_scale_align`` widens to
-        2.5 robust standard deviations of the view's depth ratio to the others (True by
-        default: where a view's depths are that noisy, the back of its distractor lies that
-        far behind the others' surfaces; measured in docs/method.md). False:
-        ``verify_hidden`` alone.
     leave_out : int
         Views on each side, in input order, whose Gaussians R_i^-i also leaves out with view
         i's own, and which do not verify view i. For video: a passer-by who stays for a few
@@ -364,30 +311,15 @@ class FilterConfig:
     reveal_reference : {"composite", "quantile"}
         What the proposal (similarity and support) and refinement compare view i with.
         ``"quantile"`` (the default): the reveal reference (:mod:`clearsplat.filter.reveal`):
-        the ``reveal_views`` views that share the most of view i's field of view and see its
-        scene from within ``reveal_max_angle``, each rendered into camera i on its own, and per
-        pixel the one at the ``reveal_quantile`` of their depths (where at least
-        ``reveal_min_views`` of them cover it; R_i^-i elsewhere, so up to four input views, or
-        where fewer views are that near, the output is the composite's). Transients stand in
+        the seven views that share the most of view i's field of view and see its scene from
+        within 30 degrees, each rendered into camera i on its own, and per pixel the one at the
+        0.75 quantile of their depths (where at least four of them cover it; R_i^-i
+        elsewhere, so up to four input views, or where fewer views are that near, the output is
+        the composite's; the constants of :mod:`clearsplat.filter.reveal`). Transients stand in
         front of the static surface, so the farther quantile still shows it where other views
         hold passers-by in front of it, as R_i^-i does not: several neighbouring frames of a
         video hold the same one, and every other view of a dense capture brings its own.
         ``"composite"``: the paper's R_i^-i. Verification keeps R_i^-i.
-    reveal_views : int
-        Neighbours the reveal reference renders (``reveal_reference="quantile"``), among those
-        that R_i^-i holds.
-    reveal_quantile : float in [0, 1]
-        Rank of the reveal reference's depth among the covering neighbours', 0 the nearest,
-        1 the farthest.
-    reveal_min_views : int
-        Fewest covering neighbours for a pixel to take the reveal reference rather than
-        R_i^-i.
-    reveal_max_angle : float or None
-        Degrees: the reveal reference takes only views whose camera centre lies within this
-        angle of view i's, seen from view i's scene point (its optical axis at the median
-        depth of its Gaussians; :func:`clearsplat.filter.reveal.parallax_angles`). Views
-        farther round see past the edges of what view i sees, and outvote its own surface
-        there (docs/method.md, "The reveal reference"). None: no limit.
     verify_views : {"auto", "centres", "mutual"}
         How each view's verification views V_i are chosen. ``"auto"``: ``"mutual"`` where
         ``neighbours`` (as ``"auto"`` resolves it) bounds the neighbourhoods, ``"centres"``
@@ -441,7 +373,6 @@ class FilterConfig:
     refine_color: float | None = 0.5
     verify_mask: Literal["auto", "proposals+revealing", "proposals", "revealing"] = "auto"
     verify_holes: Literal["auto", "skip", "count"] = "auto"
-    association_min_weight: float = 0.05
     incremental: bool = True
     num_threads: int | None = None
     view_memory: float | None = 2.0
@@ -449,28 +380,18 @@ class FilterConfig:
     depth_scale_align: bool = True
     refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
-    relative_score_pool: Literal["sum", "median"] = "median"
     color_explained: float | None = 0.75
     silhouette_explained: float | None = 0.75
-    silhouette_unreliable: bool = True
     widened_band_color: float | None = 0.99
     refine_passes: int = 2
     expand_connected: bool = True
-    expand_color: bool = True
     expand_color_bound: float | None = 0.99
-    refine_tolerance_depth: bool = False
     rounds: int | str = "auto"
     neighbours: int | None | str = "auto"
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
-    verify_mask_removed: bool = True
     verify_hidden: float | None = 0.05
-    verify_hidden_widen: bool = True
     leave_out: int = 0
     reveal_reference: Literal["composite", "quantile"] = "quantile"
-    reveal_views: int = 7
-    reveal_quantile: float = 0.75
-    reveal_min_views: int = 4
-    reveal_max_angle: float | None = 30.0
     backend: Literal["auto", "native", "gsplat", "torch"] = "auto"
 
     def __post_init__(self):
@@ -564,7 +485,6 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "verify_mask": FieldSpec("choice", choices=("auto", "proposals+revealing", "proposals",
                                                  "revealing")),
     "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
-    "association_min_weight": _unit(low_open=True),
     "incremental": FieldSpec("bool"),
     "num_threads": FieldSpec("integer", 1, optional=True),
     "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
@@ -572,28 +492,18 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "depth_scale_align": FieldSpec("bool"),
     "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
-    "relative_score_pool": FieldSpec("choice", choices=("sum", "median")),
     "color_explained": _unit(optional=True),
     "silhouette_explained": _unit(optional=True),
-    "silhouette_unreliable": FieldSpec("bool"),
     "widened_band_color": _unit(optional=True),
     "refine_passes": FieldSpec("integer", 1),
     "expand_connected": FieldSpec("bool"),
-    "expand_color": FieldSpec("bool"),
     "expand_color_bound": _unit(optional=True),
-    "refine_tolerance_depth": FieldSpec("bool"),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
-    "verify_mask_removed": FieldSpec("bool"),
     "verify_hidden": FieldSpec("number", 0.0, optional=True),
-    "verify_hidden_widen": FieldSpec("bool"),
     "leave_out": FieldSpec("integer", 0),
     "reveal_reference": FieldSpec("choice", choices=("composite", "quantile")),
-    "reveal_views": FieldSpec("integer", 1),
-    "reveal_quantile": FieldSpec("number", 0.0, 1.0),
-    "reveal_min_views": FieldSpec("integer", 1),
-    "reveal_max_angle": FieldSpec("number", 0.0, 180.0, optional=True),
     "backend": FieldSpec("choice", choices=("auto", "native", "gsplat", "torch")),
 }
 
@@ -604,24 +514,20 @@ PRESETS = {
     # The paper's procedure exactly (DINOv3 features need a local checkpoint).
     "paper": FilterConfig(features="dinov3", verify_base="full", refine="none",
                           verify_mask="proposals", verify_holes="count", depth_scale_align=False,
-                          refine_tolerance=0, min_relative_score=0.0, relative_score_pool="sum",
-                          color_explained=None, silhouette_explained=None,
-                          widened_band_color=None, expand_color_bound=None,
-                          refine_passes=1, expand_connected=False, refine_tolerance_depth=True,
-                          rounds=1, neighbours=None, verify_views="centres",
-                          verify_mask_removed=False, verify_hidden=None,
-                          verify_hidden_widen=False, reveal_reference="composite"),
+                          refine_tolerance=0, min_relative_score=0.0, color_explained=None,
+                          silhouette_explained=None, widened_band_color=None,
+                          expand_color_bound=None, refine_passes=1, expand_connected=False,
+                          rounds=1, neighbours=None, verify_views="centres", verify_hidden=None,
+                          reveal_reference="composite"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", refine="none",
                                 verify_mask="proposals", verify_holes="count",
                                 depth_scale_align=False, refine_tolerance=0,
-                                min_relative_score=0.0, relative_score_pool="sum",
-                                color_explained=None, silhouette_explained=None,
-                                widened_band_color=None, expand_color_bound=None,
-                                refine_passes=1, expand_connected=False,
-                                refine_tolerance_depth=True, rounds=1, neighbours=None,
-                                verify_views="centres", verify_mask_removed=False,
-                                verify_hidden=None, verify_hidden_widen=False,
+                                min_relative_score=0.0, color_explained=None,
+                                silhouette_explained=None, widened_band_color=None,
+                                expand_color_bound=None, refine_passes=1,
+                                expand_connected=False, rounds=1, neighbours=None,
+                                verify_views="centres", verify_hidden=None,
                                 reveal_reference="composite"),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import reveal as rv
 from .reveal import reveal_plan, reveal_reference
 
 __all__ = ["ExclusionRenders", "exclusion_renders"]
@@ -77,7 +78,7 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         allowed = ~state.left_out
         if state.plan is not None and state.plan.hoods is not None:
             allowed = allowed & np.array(state.plan.hoods)
-        plan = reveal_plan(scene, count=config.reveal_views, max_angle=config.reveal_max_angle,
+        plan = reveal_plan(scene, count=rv.VIEWS, max_angle=rv.MAX_ANGLE,
                            allowed=allowed, members=state.index.members)
     any_visible = False
     for i in range(scene.num_views):
@@ -120,15 +121,14 @@ def _reveal(state, others: list, i: int, r_excl, start=None, tiles=None):
     """View ``i``'s reveal reference from the neighbours ``others`` and where it is not
     R_i^-i (:func:`~clearsplat.filter.reveal.reveal_reference`); from ``start`` (the previous
     round's, the same neighbours) again only in ``tiles``."""
-    config = state.config
     # Each neighbour's Gaussians from its members (not a comparison over every Gaussian),
     # as one array of layer ids rather than a mask per neighbour.
     layers = np.full(state.n, -1, dtype=np.int8)
     for k, j in enumerate(others):
         layers[state.index.members[j]] = k
     return reveal_reference(state.views[i], layers, r_excl,
-                            quantile=config.reveal_quantile,
-                            min_views=config.reveal_min_views, tiles=tiles, start=start)
+                            quantile=rv.QUANTILE, min_views=rv.MIN_VIEWS,
+                            tiles=tiles, start=start)
 
 
 def _update_pair(pv, own, tiles, previous, i: int):

@@ -4,10 +4,10 @@ Paper, "Candidate Verification": a candidate that passes its individual test is 
 hat C_k, the Gaussians of its region dilated by ``dilation`` pixels within the support g_i,
 so that the soft edge of a distractor goes with it. With ``expand_connected`` it also takes
 every 8-connected group of pixels touching the region whose Gaussians stand in front of the
-static reference, within the cells of low similarity; with ``expand_color=False`` it takes,
-beyond the candidate's own Gaussians, only those in front of the static reference by depth,
-and with ``expand_color_bound`` also those whose colour differs from the other views' by more
-than the view's static content does.
+static reference, within the cells of low similarity; beyond the candidate's own Gaussians
+it takes those in front of the static reference by depth, and with ``expand_color_bound``
+also those whose colour differs from the other views' by more than the view's static content
+does.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
         pixels.
     """
     config, revealing = state.config, refinement.revealing
-    # Beyond the candidate's own Gaussians, only those in front by depth (``expand_color``),
+    # Beyond the candidate's own Gaussians, only those in front by depth,
     # and with ``expand_color_bound`` those whose colour is far beyond the static content's.
     expandable = refinement.expandable
     grow = config.expand_connected and revealing is not None

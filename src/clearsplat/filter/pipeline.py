@@ -104,8 +104,9 @@ def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
                 break
             previous, carry = carry, None
             light = previous is not None    # views made afresh come from the whole scene
-            # Pixels whose input image shows a distractor removed so far (verify_mask_removed).
-            shown = removed_pixels(scene, ~result.keep) if config.verify_mask_removed else None
+            # Pixels whose input image still shows a distractor removed so far: verification
+            # leaves them out (docs/method.md, "Later rounds").
+            shown = removed_pixels(scene, ~result.keep)
             subset = kept_scene(scene, kept, light=light)
             if light:
                 previous.source = (scene, result.keep.copy())
@@ -133,7 +134,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
 
     ``previous``: what the round before handed on, ``scene`` being its kept Gaussians.
     ``removed``: per view, (H, W) bool, the pixels where the rounds before removed that
-    view's Gaussians, left out of verification (``verify_mask_removed``; None: none).
+    view's Gaussians, left out of verification (None: none).
     ``hold``: hand this round's views and renders on (where the backend can) instead of
     releasing them. ``plan``: the views each camera's renders hold and each view's
     verification views (:func:`~clearsplat.filter.neighbours.view_plan`; None: the
@@ -194,7 +195,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         state.lap("second_range")
         if config.verify_hidden is not None:     # only what a verifying view sees
             seen_by_verifiers(state, candidates, config.verify_hidden,
-                              refinement.margins if config.verify_hidden_widen else None)
+                              refinement.margins)
             state.lap("hidden")
     else:
         state.lap("expand")

@@ -373,12 +373,12 @@ class Refinement:
         Of ``revealing``, those the expansion may take beyond a candidate's own Gaussians:
         those that qualify by depth alone, and with ``expand_color_bound`` also those kept for
         their colour alone whose colour distance exceeds their view's bound (with
-        ``refine="static-depth"`` and either ``expand_color=False`` or ``expand_color_bound``;
-        None otherwise: the expansion takes every one of ``revealing``).
+        ``refine="static-depth"`` and ``expand_color_bound``; None otherwise: the expansion
+        takes every one of ``revealing``).
     margins : list of float, or None
         Per view, the margin of the last pass's depth test, widened by the view's depth noise
         with ``depth_scale_align`` (:func:`revealing_gaussians`; None with ``refine="none"``):
-        what ``verify_hidden_widen`` reads.
+        what :func:`~clearsplat.filter.verify.seen_by_verifiers` widens its margins to.
     color_bounds : callable or None
         ``color_bounds(q)``: per view, the ``q`` quantile of the colour distances of its
         Gaussians outside every proposal region (:func:`static_color_bounds`; with
@@ -428,7 +428,7 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
         unreliable = front
-        if explained is not None and config.silhouette_unreliable and explained.any():
+        if explained is not None and explained.any():
             # The pixels of revealing | explained: those of either.
             unreliable = [f | pixels_of(state.scene, state.index, v, explained)
                           for v, f in enumerate(front)]
@@ -451,7 +451,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
     explains (``silhouette_explained``; those as ``explained``); with ``color_explained``,
     ``silhouette_explained``, ``widened_band_color`` or ``expand_color_bound``, each
     Gaussian's colour distance to the last static reference and the per-view quantiles of the
-    static ones; with ``expand_color=False`` or ``expand_color_bound``, those of the first the
+    static ones; with ``expand_color_bound``, those of the first the
     expansion may take (``Refinement.expandable``). The last pass's margins go to ``margins``
     (per view)."""
     config = state.config
@@ -474,7 +474,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
     silhouettes, band = config.silhouette_explained, config.widened_band_color
     explain = ((config.color_explained is not None and config.verify)
                or silhouettes is not None or band is not None
-               or (config.expand_color and config.expand_color_bound is not None))
+               or config.expand_color_bound is not None)
     bands = static = bounds = None
     for k in range(config.refine_passes):
         last = k == config.refine_passes - 1
@@ -505,7 +505,7 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
         # own, so that two passes' (four images per view) are never held at once.
         depths = rgbs = reference = None
     expandable = in_front       # by depth; with ``expand_color_bound`` far-off colours too
-    if expandable is not None and config.expand_color:
+    if expandable is not None:
         expandable = expandable | beyond_static_colors(distances, revealing,
                                                        state.index.members,
                                                        bounds(config.expand_color_bound))
@@ -521,9 +521,8 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
 
 def _by_depth(config) -> bool:
     """Whether the refinement's last pass also tells which Gaussians qualify by depth, for the
-    expansion (``Refinement.expandable``): without ``expand_color``, or with
-    ``expand_color_bound``."""
-    return not config.expand_color or config.expand_color_bound is not None
+    expansion (``Refinement.expandable``): with ``expand_color_bound``."""
+    return config.expand_color_bound is not None
 
 
 def beyond_static_colors(distances: np.ndarray, selected: np.ndarray, members: list,
@@ -596,11 +595,12 @@ def _overlay_reveal(depths: list, rgbs: list, renders) -> None:
 def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
     """The static reference as the tests read it: ``(depths, rgb_lo, rgb_hi)``, widened by
     ``radii`` (``refine_tolerance``) where set; ``rgb_hi`` None where nothing is widened. The
-    depths take the same radii with ``refine_tolerance_depth``, else stay as they are."""
+    depths stay as they are: the nearest surface within a few pixels of a small object on a
+    sloping floor is the floor in front of it, so a tolerant depth test drops most of such an
+    object (docs/method.md, "`refine_tolerance`")."""
     if np.isscalar(radii) and radii == 0:
         return reference, reference_rgb, None
-    depth_radii = radii if state.config.refine_tolerance_depth else 0
-    return tolerant_reference(reference, reference_rgb, radii, depth_radius=depth_radii)
+    return tolerant_reference(reference, reference_rgb, radii, depth_radius=0)
 
 
 def _in_front(state, reference: tuple, images: list, members: tuple,

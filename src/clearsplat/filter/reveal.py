@@ -6,18 +6,18 @@ i's Gaussians reveals. A passer-by held by any other view stands in front in tha
 in a video the neighbouring frames hold the same person at nearly the same place, so
 R_i^-i shows him instead of the wall behind and reveals nothing (docs/method.md, "Video").
 
-Here each of the ``reveal_views`` other views that share the most of view i's field of view
+Here each of the ``VIEWS`` (7) other views that share the most of view i's field of view
 (:func:`clearsplat.filter.neighbours.covisibility`, ``C[i, j] + C[j, i]``) and see view i's
-scene from within ``reveal_max_angle`` (:func:`parallax_angles`; views farther round see past
+scene from within ``MAX_ANGLE`` (30 degrees; :func:`parallax_angles`; views farther round see past
 the edges of what view i sees) is rendered into camera i on its own (every neighbour in one
 pass over the view's tile lists, ``render_layers``, each equal to its own render bit for bit).
 At each pixel the views that cover it (accumulated opacity above
 0.5) give one expected depth each; transients only ever stand in front of the static surface, so
 the reference is the view at rank ``floor(q (n - 1))`` of the n depths in ascending order
-(``reveal_quantile`` q): with q = 0.75 it still shows the surface when up to three quarters
+(``QUANTILE`` q): with q = 0.75 it still shows the surface when up to three quarters
 of the covering views hold something in front, and is not fooled by a quarter that see past
 an edge. Its colour, opacity and depth are that view's. Where fewer than
-``reveal_min_views`` views cover the pixel the evidence is too thin to outvote anything and
+``MIN_VIEWS`` (4) views cover the pixel the evidence is too thin to outvote anything and
 the reference is R_i^-i itself.
 
 The proposal (similarity and support) and refinement read this
@@ -34,11 +34,24 @@ from ..render import RenderResult
 from .association import view_members
 from .neighbours import covisibility
 
-__all__ = ["MIN_ALPHA", "parallax_angles", "quantile_layers", "reveal_neighbours",
+__all__ = ["MAX_ANGLE", "MIN_ALPHA", "MIN_VIEWS", "QUANTILE", "VIEWS", "parallax_angles", "quantile_layers", "reveal_neighbours",
            "reveal_plan", "reveal_reference", "typical_depths"]
 
 #: A neighbour covers a pixel where its own render's accumulated opacity exceeds this.
 MIN_ALPHA = 0.5
+#: Neighbours the reveal reference renders, among those that R_i^-i holds: the seven that
+#: bounded neighbourhoods keep (docs/method.md, "The reveal reference").
+VIEWS = 7
+#: Degrees: only views whose camera centre lies within this angle of view i's, seen from view
+#: i's scene point; views farther round see past the edges of what view i sees and outvote
+#: its own surface there.
+MAX_ANGLE = 30.0
+#: Rank of the reference's depth among the covering neighbours' (0 the nearest, 1 the
+#: farthest): the surface still shows where three quarters of them hold something in front.
+QUANTILE = 0.75
+#: Fewest covering neighbours for a pixel to take the reveal reference rather than R_i^-i:
+#: so up to four input views the output is the composite's.
+MIN_VIEWS = 4
 
 
 def reveal_neighbours(shared: np.ndarray, view: int, *, count: int,

@@ -5,8 +5,9 @@ kept (``FilterConfig.rounds``): one view's distractor can hide another's in R_i^
 the first round's removals gone it shows. A later round on the CPU takes the round before's
 prepared views, restricted to the kept Gaussians, and its renders, composited again only where
 the removals touched (:class:`Carry`); both are exact, so a round equals a fresh run on what
-the rounds before kept, but for the pixels ``verify_mask_removed`` leaves out of its
-verification (where the rounds before removed a verifying view's own Gaussians).
+the rounds before kept, but for the pixels where the rounds before removed a verifying
+view's own Gaussians: its input still shows what was removed there, so verification leaves
+them out.
 """
 
 from __future__ import annotations

@@ -265,19 +265,20 @@ def range_masks(state, proposals) -> dict:
 
 def passes(total: Partial, config, per_view: list | None = None) -> bool:
     """A test's verdict: a positive score and, where ``min_relative_score`` asks for
-    it, a large enough share of the error it touches explained by the removal: of ``total``,
-    or (``relative_score_pool="median"``, with ``per_view`` the terms of each verification
-    view) the median of the views' own shares (:func:`median_relative_score`)."""
+    it, a large enough share of the error it touches explained by the removal: with
+    ``per_view`` (the terms of each verification view, the individual test) the median of the
+    views' own shares (:func:`median_relative_score`), so that one view neither carries a
+    candidate nor vetoes it; else the share of ``total``."""
     if not total.score > 0.0:
         return False
     if config.min_relative_score <= 0:
         return True
-    if per_view is not None and config.relative_score_pool == "median":
+    if per_view is not None:
         return median_relative_score(per_view, pooled=total) > config.min_relative_score
     return total.relative_score > config.min_relative_score
 
 
-#: ``relative_score_pool="median"`` takes the median over the views whose change weight is at
+#: The individual test's share is the median over the views whose change weight is at
 #: least this share of the largest view's: a view where the removal changes a few pixels has
 #: a share that says nothing of the candidate.
 _MEDIAN_MIN_WEIGHT = 0.05
@@ -501,7 +502,8 @@ def seen_by_verifiers(state, candidates: list, margin: float,
     ``view_margins`` (per view, the margin of refinement's depth test, widened by the view's
     depth noise: :attr:`~clearsplat.filter.refine.Refinement.margins`; None for a view
     without one) the margin for a Gaussian and view j is the largest of ``margin``, its own
-    view's and j's (``verify_hidden_widen``).
+    view's and j's: where a view's depths are that noisy, the back of its distractor lies that
+    far behind the others' surfaces.
     Candidates without verifying views or expansion are left as they are. Each cut candidate
     gets ``scores["hidden"]``: how many Gaussians it keeps for that reason.
     """
