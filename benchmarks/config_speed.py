@@ -5,7 +5,7 @@ same scene and extractor, so that load changes affect them alike. Prints per con
 of the totals and of the main stages (seconds).
 
     python benchmarks/config_speed.py --views 16 default \\
-        prev=default+refine_passes=1+expand_connected=false
+        one-round=default+rounds=1
 """
 
 from __future__ import annotations

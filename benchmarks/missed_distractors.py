@@ -22,8 +22,8 @@ in the first of these steps that lost it:
   regions, and the reveal reference where it applies with ``reveal_reference="quantile"``,
   before the depth-scale alignment): *behind* it (another view's static content lies
   in front of the distractor at its pixel: misplaced by depth or pose error, or an occlusion
-  edge), *within the margin* (in front by less than ``refine_margin``: a distractor on or next
-  to the surface behind it), *in front* (by more). With ``depth_scale_align`` (the default)
+  edge), *within the margin* (in front by less than ``refine.MARGIN``: a distractor on or next
+  to the surface behind it), *in front* (by more). With the refinement (the default)
   the last is split as the first refinement pass judges it, the view's depths divided by their
   median ratio to that reference: *not at its view's scale* (no longer in front by the
   margin), *within its view's widened margin* (in front by less than the margin widened to
@@ -64,7 +64,7 @@ from clearsplat.filter import filter_distractors
 from clearsplat.filter import reveal as rv
 from clearsplat.filter.association import MIN_WEIGHT, ViewIndex, region_gaussians
 from clearsplat.filter.neighbours import dense_options, view_plan
-from clearsplat.filter.refine import member_pixels, widened_margin
+from clearsplat.filter.refine import MARGIN, member_pixels, widened_margin
 from clearsplat.filter.reveal import reveal_plan, reveal_reference
 from clearsplat.filter.robust import view_depth_scales
 from clearsplat.render import prepare, render
@@ -105,7 +105,7 @@ def _against_reference(scene, index, lost: np.ndarray, proposed: np.ndarray,
     the reveal reference where it applies (``reveal``, from :func:`_reveal_depths`), as
     refinement builds it. Returns their step names, in the order of ``np.flatnonzero(lost)``.
 
-    With ``align_scale`` (``FilterConfig.depth_scale_align``) those in front by more than
+    With ``align_scale`` (the refinement's) those in front by more than
     ``margin`` are split as the first refinement pass judges them: each view's depths divided
     by their median ratio to this reference, its margin widened by their spread; ``margins``
     (a dict) then receives each such view's ``(scale, widened margin)``."""
@@ -224,8 +224,8 @@ def main(argv=None) -> int:
     result = filter_distractors(scene, config=config)
     margins: dict = {}
     reveal = _reveal_depths(scene, config)
-    step = _steps(scene, result, truth, MIN_WEIGHT, config.refine_margin,
-                  config.depth_scale_align and config.refine == "static-depth", margins,
+    step = _steps(scene, result, truth, MIN_WEIGHT, MARGIN, config.refine == "static-depth",
+                  margins,
                   reveal)
     missed = truth & result.keep
     print(f"{args.realism} {args.family}, {args.views} views at {w}x{h}, seed {args.seed}, "

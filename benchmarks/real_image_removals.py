@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/real_image_removals.py
-    python benchmarks/real_image_removals.py --config default+expand_color_bound=null
+    python benchmarks/real_image_removals.py --config default+refine=depth
 
 Runs :func:`clearsplat.synth.stereo.real_image_check` (the Middlebury pair with a real object
 pasted into one view) with a config and prints its IoU and the other view's PSNR, then the pixels of the pasted view that

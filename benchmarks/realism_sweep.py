@@ -7,7 +7,7 @@ recall, share of the other Gaussians removed, and on the clean twin the PSNR cha
 removed.
 
     python benchmarks/realism_sweep.py --views 4 --realism pose,depth --families object \\
-        default default+refine_tolerance=0
+        default default+refine=depth
 
 ``--real-check`` adds the real-image check (Middlebury pair) of each config.
 """

@@ -71,8 +71,7 @@ def test_every_departure_of_the_default_has_an_ablation_row():
         cfg = parse_config(spec)      # every entry names options that exist today
         changed = {f.name for f in dataclasses.fields(FilterConfig)
                    if getattr(cfg, f.name) != getattr(default, f.name)}
-        # refine="none" needs verify_mask="proposals": the one pair switched off together.
-        if spec.startswith("default+") and changed - {"verify_mask"} and len(changed) <= 2:
+        if spec.startswith("default+") and len(changed) <= 2:
             for name in changed:
                 if getattr(cfg, name) == getattr(paper, name):
                     alone.setdefault(name, label)

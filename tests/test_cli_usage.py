@@ -104,8 +104,8 @@ def test_bench_writes_through_an_output_folder(tmp_path, capsys):
 
 
 def test_filter_command_imports_no_scipy(tmp_path):
-    """The filter's morphology is NumPy: a whole run, with the options that use windows and
-    connected components on and two rounds, starts no SciPy import (about 0.3 s)."""
+    """The filter's morphology is NumPy: a whole default run (its refinement's windows and
+    connected components) of two rounds starts no SciPy import (about 0.3 s)."""
     from clearsplat.io import save_scene
     from clearsplat.synth import make_world, reconstruct
     world = make_world("object", num_views=4, seed=0, height=48, width=64)
@@ -113,8 +113,7 @@ def test_filter_command_imports_no_scipy(tmp_path):
                tmp_path / "scene")
     code = ("import sys; from clearsplat.cli import main; "
             f"code = main(['filter', {str(tmp_path / 'scene')!r}, '--out', "
-            f"{str(tmp_path / 'out')!r}, '--set', 'rounds=2', '--set', 'refine_tolerance=2', "
-            "'--set', 'expand_connected=true']); "
+            f"{str(tmp_path / 'out')!r}, '--set', 'rounds=2']); "
             "assert code == 0; bad = [m for m in sys.modules if m.startswith('scipy')]; "
             "assert not bad, bad")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -91,7 +91,7 @@ def test_good_values_are_kept(name):
         values = [None]
     for value in values:
         if name == "refine" and value == "none":
-            cfg = FilterConfig(refine="none", verify_mask="proposals")
+            cfg = FilterConfig(refine="none")
         elif name == "backend" and value == "gsplat":     # CUDA only: tested below
             cfg = FilterConfig(backend="gsplat", device="cuda")
         else:
@@ -116,8 +116,7 @@ def test_cross_field_checks():
     FilterConfig(tau1=-1, tau2=1)
     with pytest.raises(ClearsplatError, match="tau1 .* must be below tau2"):
         FilterConfig(tau1=0.6, tau2=0.5)
-    with pytest.raises(ClearsplatError, match="needs refine other than 'none'"):
-        FilterConfig(refine="none")
+    FilterConfig(refine="none")                 # the paper's mask follows without refinement
     FilterConfig(backend="torch", device="cuda")
     with pytest.raises(ClearsplatError, match="'native' renders on the CPU only") as e:
         FilterConfig(backend="native", device="cuda")

@@ -1,4 +1,4 @@
-"""Candidates the other views explain (``FilterConfig.color_explained``): the colour distances
+"""Candidates the other views explain (``refine.EXPLAINED_QUANTILE``): the colour distances
 and the per-candidate test."""
 
 import numpy as np
@@ -199,18 +199,13 @@ def test_candidates_without_a_reference_colour_are_never_explained():
 
 @pytest.mark.parametrize("preset", ["paper", "paper-local"])
 def test_paper_presets_remove_every_candidate_that_passes(preset):
-    assert FilterConfig.preset(preset).color_explained is None
-    assert FilterConfig().color_explained == 0.75
+    from clearsplat.filter import refine
+    # No refinement, no static reference: nothing can be explained.
+    assert FilterConfig.preset(preset).refine == "none"
+    assert FilterConfig().refine == "static-depth" and refine.EXPLAINED_QUANTILE == 0.75
 
 
-@pytest.mark.parametrize("bad", [-0.1, 1.5, "high"])
-def test_color_explained_takes_a_quantile(bad):
-    from clearsplat.errors import ClearsplatError
-    with pytest.raises(ClearsplatError, match="color_explained"):
-        FilterConfig(color_explained=bad)
-
-
-def test_explained_candidates_are_rejected():
+def test_explained_candidates_are_rejected(monkeypatch):
     from clearsplat.features import get_extractor
     from clearsplat.filter import filter_distractors
     from clearsplat.synth import make_world
@@ -219,13 +214,15 @@ def test_explained_candidates_are_rejected():
     world = make_world("object", num_views=4, seed=1, height=96, width=160)
     scene, _ = realistic_reconstruction(world, "pose", seed=1)
     extractor = get_extractor("local")
-    # The rule alone: without silhouette_explained, which keeps the outlines of this scene's
+    from clearsplat.filter import refine
+    # The rule alone: without the silhouette rule, which keeps the outlines of this scene's
     # misplaced static content before any candidate is judged.
-    base = FilterConfig(silhouette_explained=None)
-    off = filter_distractors(scene, config=base.replace(color_explained=None),
-                             extractor=extractor)
-    on = filter_distractors(scene, config=base.replace(color_explained=0.9),
-                            extractor=extractor)
+    monkeypatch.setattr(refine, "SILHOUETTE_QUANTILE", None)
+    base = FilterConfig()
+    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", None)
+    off = filter_distractors(scene, config=base, extractor=extractor)
+    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", 0.9)
+    on = filter_distractors(scene, config=base, extractor=extractor)
     explained = [c for c in on.candidates if c.reason.startswith("explained")]
     assert explained                        # the estimated poses leave such candidates
     by_index = {c.index: c for c in off.candidates}
@@ -251,12 +248,11 @@ def test_explained_candidates_are_rejected():
             [x.expanded for x in on.candidates if x.accepted] or [np.array([], int)]))
         assert not np.isin(only, removed).any()
     # With refine other than "static-depth" there is no static reference: nothing is explained.
-    depth = filter_distractors(scene, config=base.replace(color_explained=0.9, refine="depth"),
-                               extractor=extractor)
+    depth = filter_distractors(scene, config=base.replace(refine="depth"), extractor=extractor)
     assert not any(c.reason.startswith("explained") for c in depth.candidates)
 
 
-def test_without_verification_nothing_is_explained():
+def test_without_verification_nothing_is_explained(monkeypatch):
     # The "no verification" ablation removes every proposal, explained or not.
     from clearsplat.features import get_extractor
     from clearsplat.filter import filter_distractors
@@ -265,7 +261,9 @@ def test_without_verification_nothing_is_explained():
 
     world = make_world("object", num_views=4, seed=1, height=96, width=160)
     scene, _ = realistic_reconstruction(world, "pose", seed=1)
-    res = filter_distractors(scene, config=FilterConfig(verify=False, color_explained=0.9),
+    from clearsplat.filter import refine
+    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", 0.9)
+    res = filter_distractors(scene, config=FilterConfig(verify=False),
                              extractor=get_extractor("local"))
     assert res.candidates and all(c.accepted for c in res.candidates)
 
@@ -295,7 +293,7 @@ def test_explained_second_range_candidates_skip_the_additional_and_joint_tests(m
 
 
 
-# --- silhouette_explained: flying pixels at a distractor's outline -------------------------
+# --- silhouettes (refine.SILHOUETTE_QUANTILE): flying pixels at a distractor's outline -------------------------
 
 def _slow_silhouettes(view_id, pixels, shapes, revealing, distances, raw, quantile):
     """Per Gaussian, by the definition: kept by the refinement, its pixel with an in-image
@@ -396,7 +394,7 @@ def test_explained_silhouettes_closed_form():
     assert not got.any()
 
 
-def test_silhouette_explained_keeps_flying_pixels_and_every_distractor():
+def test_silhouette_explained_keeps_flying_pixels_and_every_distractor(monkeypatch):
     # Video frames of the street: the stand-in backbone blurs depth across each passer-by's
     # outline, so the wall's pixels next to him float in front of the wall.
     from clearsplat.features import get_extractor
@@ -409,9 +407,10 @@ def test_silhouette_explained_keeps_flying_pixels_and_every_distractor():
     scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
     truth = distractor_truth(scene, world)
     extractor = get_extractor("local")
-    off = filter_distractors(scene, config=FilterConfig(silhouette_explained=None),
-                             extractor=extractor)
+    from clearsplat.filter import refine
     on = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
+    monkeypatch.setattr(refine, "SILHOUETTE_QUANTILE", None)
+    off = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
     static_off = (~off.keep & ~truth).sum()
     static_on = (~on.keep & ~truth).sum()
     assert static_on < 0.8 * static_off
@@ -428,7 +427,7 @@ def test_silhouette_explained_keeps_flying_pixels_and_every_distractor():
     assert np.mean(z < 0.95) > 0.7
 
 
-def test_kept_silhouettes_stay_unreliable_for_verification():
+def test_kept_silhouettes_stay_unreliable_for_verification(monkeypatch):
     # The rule runs after the last refinement pass, on what that pass keeps: the pixels
     # verification leaves out are those of the run without the rule, bit for bit (a flying
     # pixel mixes the distractor's colour into the surface's and says nothing either way).
@@ -440,26 +439,19 @@ def test_kept_silhouettes_stay_unreliable_for_verification():
                        transients="video")
     scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
     extractor = get_extractor("local")
-    runs = {name: filter_distractors(scene, config=FilterConfig(**kw), extractor=extractor)
-            for name, kw in [("none", dict(silhouette_explained=None)), ("on", {})]}
+    from clearsplat.filter import refine
+    runs = {"on": filter_distractors(scene, config=FilterConfig(), extractor=extractor)}
+    monkeypatch.setattr(refine, "SILHOUETTE_QUANTILE", None)
+    runs["none"] = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
     assert all(len(r.proposals) == scene.num_views for r in runs.values())
     for none, on in zip(runs["none"].proposals, runs["on"].proposals):
         np.testing.assert_array_equal(on.unreliable, none.unreliable)
     assert (runs["on"].keep & ~runs["none"].keep).any()    # the rule kept some silhouettes
 
 
-@pytest.mark.parametrize("preset", ["paper", "paper-local"])
-def test_paper_presets_keep_no_silhouette(preset):
-    assert FilterConfig.preset(preset).silhouette_explained is None
-    assert FilterConfig().silhouette_explained == 0.75
-    from clearsplat.errors import ClearsplatError
-    with pytest.raises(ClearsplatError, match="silhouette_explained"):
-        FilterConfig(silhouette_explained=1.5)
-    assert FilterConfig.preset(preset).widened_band_color is None
-    assert FilterConfig().widened_band_color == 0.99
-    assert FilterConfig.preset(preset).expand_color_bound is None
-    assert FilterConfig().expand_color_bound == 0.99
-    with pytest.raises(ClearsplatError, match="expand_color_bound"):
-        FilterConfig(expand_color_bound=1.5)
-    with pytest.raises(ClearsplatError, match="widened_band_color"):
-        FilterConfig(widened_band_color=-0.5)
+def test_the_colour_tests_take_quantiles_of_the_static_distances():
+    from clearsplat.filter import refine
+    quantiles = (refine.EXPLAINED_QUANTILE, refine.SILHOUETTE_QUANTILE, refine.BAND_QUANTILE,
+                 refine.EXPAND_QUANTILE)
+    assert quantiles == (0.75, 0.75, 0.99, 0.99)
+    assert all(0 < q <= 1 for q in quantiles)

@@ -78,7 +78,7 @@ def test_a_candidate_whose_removal_hurts_is_rejected(world, extractor):
     # candidate is static content whose removal opens holes in the other views, so the
     # individual test (verifying views rendered without their own Gaussians) rejects it.
     clean = clean_reference(world, seed=1)
-    cfg = FilterConfig(tau1=0.9, tau2=0.95, refine="none", verify_mask="proposals")
+    cfg = FilterConfig(tau1=0.9, tau2=0.95, refine="none")
     res = filter_distractors(clean, config=cfg, extractor=extractor)
     hurt = [c for c in res.candidates if c.scores.get("individual", 1.0) < 0]
     assert len(hurt) > len(res.candidates) // 2

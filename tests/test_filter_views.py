@@ -32,8 +32,7 @@ def _same(a, b):
 
 #: A config whose tests leave out views on this scene (the default's candidates here are seen
 #: by every view, and so are the paper's), and that tests a second range here.
-_SKIPS = dict(verify_mask="proposals+revealing", refine_passes=1, depth_scale_align=False,
-              color_explained=None, reveal_reference="composite")
+_SKIPS = dict(refine="depth")
 
 
 @pytest.mark.parametrize("preset,changes", [("default", {}), ("default", _SKIPS),

@@ -16,8 +16,7 @@ from clearsplat.filter.verify import Partial, change_weighted_terms
 from clearsplat.synth import make_world
 from clearsplat.synth.realism import realistic_reconstruction
 
-NEW = dict(depth_scale_align=True, refine_tolerance=2, min_relative_score=0.3, refine_passes=2,
-           expand_connected=True, rounds=2)
+NEW = dict(min_relative_score=0.3, rounds=2)
 
 
 @pytest.fixture
@@ -26,6 +25,13 @@ def verify_removed_pixels(monkeypatch):
     Gaussians as any other (a second run on the kept scene cannot know them)."""
     from clearsplat.filter import pipeline
     monkeypatch.setattr(pipeline, "removed_pixels", lambda scene, removed: None)
+
+
+@pytest.fixture
+def no_explained(monkeypatch):
+    """Without the colour-explained verdict (``refine.EXPLAINED_QUANTILE``)."""
+    from clearsplat.filter import refine
+    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", None)
 
 
 def test_view_depth_scales_is_the_median_ratio():
@@ -241,16 +247,9 @@ def test_depth_scale_alignment_undoes_a_view_scale_bias():
 def test_options_are_validated_and_off_in_the_paper_presets():
     for name in ("paper", "paper-local"):
         cfg = FilterConfig.preset(name)
-        assert not cfg.depth_scale_align and cfg.refine_tolerance == 0
-        assert cfg.min_relative_score == 0.0
-        assert cfg.refine_passes == 1 and cfg.verify_mask == "proposals"
-        assert not cfg.expand_connected
-        assert cfg.rounds == 1
-    for field, bad in (("refine_tolerance", -1), ("refine_tolerance", 1.5),
-                       ("refine_tolerance", True), ("min_relative_score", 1.0),
-                       ("min_relative_score", -0.1), ("refine_passes", 0),
-                       ("refine_passes", 1.5), ("verify_mask", "none"), ("rounds", 0),
-                       ("rounds", 2.5)):
+        assert cfg.refine == "none" and cfg.min_relative_score == 0.0 and cfg.rounds == 1
+    for field, bad in (("min_relative_score", 1.0), ("min_relative_score", -0.1),
+                       ("rounds", 0), ("rounds", 2.5), ("refine", "static")):
         with pytest.raises(ClearsplatError) as e:
             FilterConfig(**{field: bad})
         assert e.value.field == field
@@ -265,8 +264,7 @@ def soft_scene():
 def test_options_off_give_the_filter_without_them(soft_scene):
     scene, _ = soft_scene
     ex = get_extractor("local")
-    off = dict(depth_scale_align=False, refine_tolerance=0, min_relative_score=0.0,
-               refine_passes=1, expand_connected=False, rounds=1)
+    off = dict(min_relative_score=0.0, rounds=1)
     a = filter_distractors(scene, config=FilterConfig.preset("paper-local"), extractor=ex)
     b = filter_distractors(scene, config=FilterConfig.preset("paper-local", **NEW).replace(**off),
                            extractor=ex)
@@ -279,12 +277,7 @@ def test_options_off_give_the_filter_without_them(soft_scene):
 def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option):
     scene, _ = soft_scene
     ex = get_extractor("local")
-    base = filter_distractors(scene, config=FilterConfig(min_relative_score=0.0,
-                                                         refine_tolerance=0,
-                                                         depth_scale_align=False,
-                                                         refine_passes=1,
-                                                         expand_connected=False,
-                                                         rounds=1),
+    base = filter_distractors(scene, config=FilterConfig(min_relative_score=0.0, rounds=1),
                               extractor=ex)
     res = filter_distractors(scene, config=base.config.replace(**{option: NEW[option]}),
                              extractor=ex)
@@ -300,15 +293,18 @@ def test_each_option_runs_and_changes_only_through_its_stage(soft_scene, option)
             [c.scores.get("individual") for c in base.candidates]
 
 
-def test_verification_mask_modes(soft_scene):
-    """``"revealing"`` leaves out exactly the verifying view's unreliable pixels, ``"auto"`` is
-    ``"revealing"`` with eight or more views and ``"proposals+revealing"`` with fewer."""
+def test_verification_mask_modes(soft_scene, monkeypatch):
+    """``"revealing"`` leaves out exactly the verifying view's unreliable pixels; with
+    refinement verification takes ``"revealing"`` from eight views on and
+    ``"proposals+revealing"`` below, without it the proposal regions (the paper)."""
+    from clearsplat.filter import verify
     from clearsplat.filter.verify import exclusion_masks as _exclusion_masks
     scene, _ = soft_scene
     ex = get_extractor("local")
-    res = {m: filter_distractors(scene, config=FilterConfig(verify_mask=m), extractor=ex)
-           for m in ("auto", "revealing", "proposals+revealing")}
-    props = res["revealing"].proposals
+    below = filter_distractors(scene, extractor=ex)
+    monkeypatch.setattr(verify, "_REVEALING_MASK_MIN_VIEWS", 1)
+    revealing = filter_distractors(scene, extractor=ex)
+    props = revealing.proposals
     for rng in (1, 2):
         for p, q in zip(props, _exclusion_masks(props, rng, "revealing")):
             np.testing.assert_array_equal(q, p.unreliable)
@@ -316,26 +312,27 @@ def test_verification_mask_modes(soft_scene):
             m = p.mask1 if rng == 1 else p.mask1 | p.mask2
             np.testing.assert_array_equal(q, m | p.unreliable)
     assert scene.num_views == 3
-    np.testing.assert_array_equal(res["auto"].keep, res["proposals+revealing"].keep)
-    assert [c.scores for c in res["auto"].candidates] == \
-        [c.scores for c in res["proposals+revealing"].candidates]
     # the masks differ, and with them some score
-    assert [c.scores for c in res["revealing"].candidates] != \
-        [c.scores for c in res["proposals+revealing"].candidates]
-    world = make_world("object", num_views=8, seed=1, height=32, width=64)
-    eight, _ = realistic_reconstruction(world, "plain", seed=1)
-    a = filter_distractors(eight, config=FilterConfig(verify_mask="auto"), extractor=ex)
-    b = filter_distractors(eight, config=FilterConfig(verify_mask="revealing"), extractor=ex)
-    np.testing.assert_array_equal(a.keep, b.keep)
-    assert [c.scores for c in a.candidates] == [c.scores for c in b.candidates]
-    with pytest.raises(ClearsplatError):
-        FilterConfig(refine="none", verify_mask="auto")
+    assert [c.scores for c in revealing.candidates] != [c.scores for c in below.candidates]
+    # with fewer views than the constant, the proposal regions stay out as well
+    seen = []
+    masks = verify.exclusion_masks
+    monkeypatch.setattr(verify, "exclusion_masks",
+                        lambda proposals, rng, mode: seen.append(mode) or masks(proposals,
+                                                                                rng, mode))
+    monkeypatch.setattr(verify, "_REVEALING_MASK_MIN_VIEWS", 8)
+    again = filter_distractors(scene, extractor=ex)
+    assert set(seen) == {"proposals+revealing"}
+    assert [c.scores for c in again.candidates] == [c.scores for c in below.candidates]
+    seen.clear()
+    filter_distractors(scene, config=FilterConfig(refine="none"), extractor=ex)
+    assert set(seen) == {"proposals"}
 
 
 def test_config_specs_read_values_with_a_plus():
     from clearsplat.bench import parse_config
-    cfg = parse_config("default+verify_mask=proposals+revealing+refine_passes=1")
-    assert cfg.verify_mask == "proposals+revealing" and cfg.refine_passes == 1
+    cfg = parse_config("default+checkpoint=dino+v3+rounds=1")
+    assert cfg.checkpoint == "dino+v3" and cfg.rounds == 1
     assert parse_config("paper-local") == FilterConfig.preset("paper-local")
     with pytest.raises(ClearsplatError):
         parse_config("default+revealing")
@@ -375,11 +372,13 @@ def test_grow_connected_adds_the_touched_in_front_groups_of_low_similarity():
     np.testing.assert_array_equal(_grow_connected(lone, 0, {}, front_px, proposal, 0.69), lone)
 
 
-def test_expand_connected_only_adds_to_the_expansion(soft_scene):
+def test_expand_connected_only_adds_to_the_expansion(soft_scene, monkeypatch):
+    from clearsplat.filter import expansion
     scene, _ = soft_scene
     ex = get_extractor("local")
-    on = filter_distractors(scene, config=FilterConfig(expand_connected=True), extractor=ex)
-    off = filter_distractors(scene, config=FilterConfig(expand_connected=False), extractor=ex)
+    on = filter_distractors(scene, extractor=ex)
+    monkeypatch.setattr(expansion, "grow_connected", lambda pixels, *args: pixels)
+    off = filter_distractors(scene, extractor=ex)
     assert [c.scores.get("individual") for c in on.candidates] == \
         [c.scores.get("individual") for c in off.candidates]
     for a, b in zip(on.candidates, off.candidates):
@@ -408,7 +407,7 @@ def test_revealing_by_depth_is_the_test_without_colours():
 
 def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_scene,
                                                                        monkeypatch):
-    """``expand_color_bound`` decides every candidate's individual test as before and expands
+    """``refine.EXPAND_QUANTILE`` decides every candidate's individual test as before and expands
     each to a set between the depth-only expansion (no Gaussian taken for its colour alone)
     and the one without a bound, which holds the candidate's own Gaussians."""
     from clearsplat.filter import refine as refine_stage
@@ -416,11 +415,13 @@ def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_sc
     ex = get_extractor("local")
     cfg = FilterConfig(rounds=1, verify_hidden=None)
     bounded = filter_distractors(scene, config=cfg, extractor=ex)
-    every = filter_distractors(scene, config=cfg.replace(expand_color_bound=None), extractor=ex)
+    assert refine_stage.EXPAND_QUANTILE == 0.99
+    monkeypatch.setattr(refine_stage, "EXPAND_QUANTILE", None)
+    every = filter_distractors(scene, config=cfg, extractor=ex)
+    monkeypatch.setattr(refine_stage, "EXPAND_QUANTILE", 0.99)
     monkeypatch.setattr(refine_stage, "beyond_static_colors",
                         lambda distances, *args: np.zeros(distances.shape, dtype=bool))
     runs = [filter_distractors(scene, config=cfg, extractor=ex), bounded, every]
-    assert cfg.expand_color_bound == 0.99
     scores = [[c.scores.get("individual") for c in r.candidates] for r in runs]
     assert scores[0] == scores[1] == scores[2]
     below = above = 0
@@ -508,16 +509,17 @@ def _two_rounds_are_two_runs(scene, one, ex):
     return first, second, both
 
 
-def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene,
+def test_rounds_run_the_procedure_again_on_the_gaussians_kept(soft_scene, no_explained,
                                                               verify_removed_pixels):
     """``rounds=2`` is the filter run once, then run again on the scene without what it
     removed, the second run's removals and candidates mapped back to the whole scene."""
     scene, _ = soft_scene
     ex = get_extractor("local")
-    # Without min_relative_score and color_explained the first round leaves something for the
+    # Without min_relative_score and the colour-explained verdict the first round leaves
+    # something for the
     # second on this small scene. A later round also leaves out what the first removed from
     # verification, which a second run cannot know: not here (verify_removed_pixels).
-    one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None)
+    one = FilterConfig(rounds=1, min_relative_score=0.0)
     first, kept, second, expect = _two_runs(scene, one, ex)
     assert not second.keep.all(), "the scene should have something for a second round to find"
     stages = []
@@ -619,13 +621,13 @@ def test_box_extreme_matches_scipy(seed):
                                                              mode="nearest"))
 
 
-def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene):
+def test_three_rounds_equal_three_runs_on_what_each_kept(soft_scene, no_explained):
     """Each round takes its views and renders from the round before (restricted, not prepared
     again): the same as running the filter afresh on what the rounds before kept."""
     scene, _ = soft_scene
     ex = get_extractor("local")
     # Three rounds find something on this small scene without these two.
-    one = FilterConfig(rounds=1, min_relative_score=0.0, color_explained=None)
+    one = FilterConfig(rounds=1, min_relative_score=0.0)
     kept = np.arange(len(scene))
     runs = 0
     for _ in range(3):
@@ -675,19 +677,22 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile(verify_removed
     assert len(second.candidates) > 0
 
 
-def test_rounds_with_color_explained_are_runs_on_what_each_kept(verify_removed_pixels):
-    """``color_explained`` acts within each round, on that round's Gaussians."""
+def test_rounds_with_color_explained_are_runs_on_what_each_kept(verify_removed_pixels,
+                                                                monkeypatch):
+    """The colour-explained verdict acts within each round, on that round's Gaussians."""
+    from clearsplat.filter import refine
+    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", 0.9)
     world = make_world("street", num_views=8, seed=0, height=64, width=112)
     scene, _ = realistic_reconstruction(world, "pose", seed=0)
     ex = get_extractor("local")
-    one = FilterConfig(rounds=1, color_explained=0.9)
+    one = FilterConfig(rounds=1)
     first, second, _ = _two_rounds_are_two_runs(scene, one, ex)
     assert any(c.reason.startswith("explained") for c in first.candidates + second.candidates)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_widened_band_qualifies_by_colour_within_the_views_depth_noise(seed):
-    """``band_bounds`` (``widened_band_color``): where the view's depth noise widens its
+    """``band_bounds`` (``refine.BAND_QUANTILE``): where the view's depth noise widens its
     margin, a Gaussian in front by more than ``margin`` but within the widened margin qualifies
     when its colour distance exceeds its view's bound; a slow per-view reference of the rule.
     Without a widened margin, or without a bound, nothing changes."""
@@ -728,7 +733,7 @@ def test_widened_band_qualifies_by_colour_within_the_views_depth_noise(seed):
         revealing_gaussians(scene, index, ref, margin=0.02, color_distance=distance))
 
 
-def test_widened_band_color_finds_what_depth_noise_hides():
+def test_widened_band_color_finds_what_depth_noise_hides(monkeypatch):
     """The object world at 8 views with every artifact: within the views' widened margins
     lies part of a distractor that only its colour tells from the surface behind."""
     from clearsplat.features import get_extractor
@@ -736,11 +741,11 @@ def test_widened_band_color_finds_what_depth_noise_hides():
     world = make_world("object", num_views=8, seed=0, height=128, width=224)
     scene, truth = realistic_reconstruction(world, "all", seed=0)
     extractor = get_extractor("local")
-    off = filter_distractors(scene, config=FilterConfig(widened_band_color=None),
-                             extractor=extractor)
+    from clearsplat.filter import refine
     on = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
+    monkeypatch.setattr(refine, "BAND_QUANTILE", None)
+    off = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
     recall = [(~r.keep & truth).sum() / truth.sum() for r in (off, on)]
     static = [(~r.keep & ~truth).sum() / (~truth).sum() for r in (off, on)]
     assert recall[1] > recall[0] + 0.03
     assert static[1] < static[0] + 0.001
-    assert FilterConfig.preset("paper-local").widened_band_color is None

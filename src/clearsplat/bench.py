@@ -40,22 +40,12 @@ ABLATIONS = {
     # ... and the individual test's base without the default's second step (the other views'
     # candidates left in, as the additional test leaves them).
     "exclude-own-base": "default+verify_base=exclude-own",
-    "no-refine": "default+refine=none+verify_mask=proposals",
+    "no-refine": "default+refine=none",
     "plain-depth": "default+refine=depth",
-    "no-unrel-mask": "default+verify_mask=proposals",
-    "mask-proposals": "default+verify_mask=proposals+revealing",
     "holes-count": "default+verify_holes=count",
-    "no-depth-scale": "default+depth_scale_align=false",
-    "no-refine-tol": "default+refine_tolerance=0",
     "no-rel-score": "default+min_relative_score=0",
-    "one-refine-pass": "default+refine_passes=1",
-    "no-expand-conn": "default+expand_connected=false",
     "one-round": "default+rounds=1",
     "every-view": "default+neighbours=null+verify_views=centres",
-    "no-color-explained": "default+color_explained=null",
-    "no-silhouettes": "default+silhouette_explained=null",
-    "no-band-color": "default+widened_band_color=null",
-    "expand-any-color": "default+expand_color_bound=null",
     "remove-hidden": "default+verify_hidden=null",
     "composite": "default+reveal_reference=composite",
     # The paper's own ablations, on the default.
@@ -64,7 +54,6 @@ ABLATIONS = {
     "single<tau1": "default+second_range=false",
     "no-verify": "default+verify=false",
     # Options that are off by default, switched on.
-    "refine-tol=2": "default+refine_tolerance=2",
     "+rel-score=0.5": "default+min_relative_score=0.5",
     "video": "video",
 }

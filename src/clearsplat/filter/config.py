@@ -168,27 +168,12 @@ class FilterConfig:
         depth condition applied per Gaussian instead of per patch, against a reference that other
         views' distractors cannot occlude.
         ``"depth"``: the same against the plain exclusion render R_i^-i.
-        ``"none"``: every Gaussian of the region (the paper).
-    refine_margin : float
-        Relative depth gap that counts as "in front" of the reference in refinement
-        (``refine="depth"`` and ``"static-depth"``): a Gaussian qualifies below
-        ``(1 - refine_margin)`` times the reference depth at its pixel.
-    refine_color : float or None
-        With ``refine="static-depth"``: also keep Gaussians whose input colour differs from the
-        static reference's colour by more than this (L1 over RGB) and that do not lie behind it
-        (the parts of an object that touch the surface behind it). None: depth only.
-    verify_mask : {"auto", "proposals+revealing", "proposals", "revealing"}
-        Pixels each verifying view leaves out. ``"proposals"``: its proposal regions (the paper).
-        ``"proposals+revealing"``: also the pixels where its own Gaussians stand in front of the
-        static reference (its own likely distractors, where the input does not show the static
-        scene). ``"revealing"``: only those: a proposal region of the verifying view is often
-        caused by the candidate itself (another view's distractor standing in its exclusion
-        render), and leaving it out leaves out the very pixels that would confirm the
-        candidate. ``"auto"``: ``"revealing"`` with eight or more views, where neighbouring
-        views see each distractor at nearly the same place; ``"proposals+revealing"`` with
-        fewer, where the proposal regions also keep static candidates from passing on clean
-        scenes.
-        All but ``"proposals"`` need ``refine`` other than ``"none"``.
+        ``"none"``: every Gaussian of the region (the paper). With refinement, the default's
+        departures that read it follow: each view's depths at its own scale and noise, a
+        colour test within each view's measured misregistration, two passes of the static
+        reference, candidates the other views' colours explain rejected, flying pixels at
+        outlines kept, the pixels in front left out of verification and grown into by the
+        expansion (the constants of :mod:`clearsplat.filter.refine`; docs/method.md).
     verify_holes : {"auto", "skip", "count"}
         Pixels where the render after a removal keeps accumulated opacity below ``eta`` show what
         no remaining Gaussian saw. ``"count"`` scores them against the empty background (the
@@ -208,19 +193,6 @@ class FilterConfig:
         never changes the output. A later round (``rounds``) gives its views this less what
         stays held while it runs (the result of the rounds before, its copy of the kept
         Gaussians), so that it peaks about where the first does. None: no limit.
-    depth_scale_align : bool
-        Judge "in front of the static surface" (``refine``) in each view's own depth scale: its
-        depths divided by their median ratio to the static reference first, and the margin
-        widened to 2.5 robust standard deviations of that ratio where the view's depths are
-        noisier. False: the paper.
-    refine_tolerance : int or "auto"
-        Radius in pixels of the misregistration the ``refine`` tests tolerate: a Gaussian is in
-        front of the static reference only if it is in front of the nearest surface the other
-        views render within this radius, and its colour differs only if it lies outside the range
-        of their colours there (:func:`clearsplat.filter.robust.tolerant_reference`). 0: the
-        tests at the Gaussian's own pixel. ``"auto"``: per view, the misregistration measured
-        between its input and its exclusion render
-        (:func:`clearsplat.filter.robust.misregistration`; 0 where the views agree).
     min_relative_score : float
         Also require each test's removal to take away more than this share of the
         change-weighted error of the pixels it changes (``sum(w delta) / sum(w E)``, see
@@ -228,60 +200,6 @@ class FilterConfig:
         explains most of the error where it changes the render; static content that the views
         merely place a little differently (pose error, depth scale) trades one error for another
         and scores a small share even when its score is positive. Default 0.2; 0: the paper.
-    color_explained : float or None
-        Reject a candidate whose removal would take away only what the other views already show
-        where its view shows it, within that view's misregistration: static content out of
-        register (a pose or depth-scale error), not a transient. Per Gaussian, the colour
-        distance is the L1 distance of its view's input colour to the range of the static
-        reference's colours within the ``refine_tolerance`` radius
-        (:func:`clearsplat.filter.refine.color_distances`); a candidate that passed its
-        individual test is explained when the median over its expanded Gaussians [hat C_k] is at
-        most this quantile of the same distance over its view's Gaussians outside every proposal
-        region (how closely the other views reproduce that view's static content); both count
-        only the Gaussians where the last refinement pass's static reference has a colour. An
-        explained candidate is rejected; one of the second range then takes no part in the
-        additional and joint tests. Applies with ``refine="static-depth"`` (whose reference it
-        reads) and ``verify``, and is ignored otherwise. Default 0.75; None: the paper (every
-        candidate that passes is removed).
-    silhouette_explained : float or None
-        Keep the flying pixels at a distractor's outline: a depth network blurs depth across
-        the outline, so the Gaussians of the surface pixels next to a distractor float in front
-        of that surface while showing its colour. Per view, a Gaussian that the refinement
-        keeps is kept in the scene instead where its pixel has an 8-neighbour holding none of
-        the view's kept Gaussians (the outline of what stands in front) and its colour
-        distance (as for ``color_explained``) is at most this quantile of the distances of its
-        view's Gaussians outside every proposal region. Applies with
-        ``refine="static-depth"``. Default 0.75; None: off (the paper has no refinement).
-    widened_band_color : float or None
-        With ``depth_scale_align``: where a view's depth noise widens its refinement margin, a
-        Gaussian in front of the static reference by more than ``refine_margin`` but less than
-        the widened margin also qualifies when its colour distance (as for
-        ``color_explained``) exceeds this quantile of the distances of its view's Gaussians
-        outside every proposal region: within the view's depth noise, a colour the other views
-        do not show there decides. Applies with ``refine="static-depth"``. Default 0.99;
-        None: off (depth alone decides within the widened margin).
-    refine_passes : int
-        How often ``refine="static-depth"`` builds its static reference. The first pass renders
-        each view without every proposed Gaussian of the others; a proposal region covers whole
-        patches, so much static content goes with it and static surfaces "in front of" the
-        hole it leaves qualify. Each later pass leaves out only the proposed Gaussians the
-        previous pass kept. 1: a single pass (the paper does not refine at all).
-    expand_connected : bool
-        Also expand an accepted candidate [hat C_k] into every 8-connected group of its view's
-        pixels that it touches whose Gaussians stand in front of the static reference
-        (``refine``) within cells of similarity below tau2, whether or not the support
-        condition holds there: the support is judged per patch, and a distractor's patches
-        where the other views render little, or at a similar mean depth, drop out of the
-        paper's expansion. False: the paper (dilation within the support only).
-    expand_color_bound : float or None
-        Beyond the candidate's own Gaussians, a Gaussian the refinement keeps for its colour
-        alone joins the expansion only where its colour distance (as for
-        ``color_explained``) exceeds this quantile of the distances of its view's Gaussians
-        outside every proposal region. Around a distractor the dilation reaches static
-        surfaces whose fine texture the other views render a pixel or two off (fences,
-        spokes, print): their colours differ from the reference as much as the view's static
-        content often does elsewhere, and colour alone says nothing there. Applies with
-        ``refine="static-depth"``. Default 0.99; None: every Gaussian the refinement keeps.
     rounds : int or "auto"
         How often the whole procedure runs. Each later round runs it again on the Gaussians
         the earlier rounds kept, so that the distractors found so far no longer stand in the
@@ -369,23 +287,12 @@ class FilterConfig:
     verify: bool = True
     verify_base: Literal["full", "exclude-own", "static"] = "static"
     refine: Literal["static-depth", "depth", "none"] = "static-depth"
-    refine_margin: float = 0.02
-    refine_color: float | None = 0.5
-    verify_mask: Literal["auto", "proposals+revealing", "proposals", "revealing"] = "auto"
     verify_holes: Literal["auto", "skip", "count"] = "auto"
     incremental: bool = True
     num_threads: int | None = None
     view_memory: float | None = 2.0
     device: str = "cpu"
-    depth_scale_align: bool = True
-    refine_tolerance: int | str = "auto"
     min_relative_score: float = 0.2
-    color_explained: float | None = 0.75
-    silhouette_explained: float | None = 0.75
-    widened_band_color: float | None = 0.99
-    refine_passes: int = 2
-    expand_connected: bool = True
-    expand_color_bound: float | None = 0.99
     rounds: int | str = "auto"
     neighbours: int | None | str = "auto"
     verify_views: Literal["auto", "centres", "mutual"] = "auto"
@@ -399,9 +306,6 @@ class FilterConfig:
             spec = FIELD_SPECS.get(f.name)
             if spec is not None:        # tests/test_config.py requires a spec for every field
                 object.__setattr__(self, f.name, spec.check(f.name, getattr(self, f.name)))
-        if self.verify_mask != "proposals" and self.refine == "none":
-            raise ClearsplatError(f"{self.verify_mask!r} needs refine other than 'none' "
-                                  "(or choose verify_mask='proposals')", field="verify_mask")
         if self.tau1 is not None and self.tau2 is not None and not self.tau1 < self.tau2:
             raise ClearsplatError(f"tau1 ({self.tau1}) must be below tau2 ({self.tau2})",
                                   field="tau1/tau2")
@@ -480,24 +384,12 @@ FIELD_SPECS: dict[str, FieldSpec] = {
     "verify": FieldSpec("bool"),
     "verify_base": FieldSpec("choice", choices=("full", "exclude-own", "static")),
     "refine": FieldSpec("choice", choices=("static-depth", "depth", "none")),
-    "refine_margin": FieldSpec("number", 0.0),
-    "refine_color": FieldSpec("number", 0.0, 3.0, optional=True),
-    "verify_mask": FieldSpec("choice", choices=("auto", "proposals+revealing", "proposals",
-                                                 "revealing")),
     "verify_holes": FieldSpec("choice", choices=("auto", "skip", "count")),
     "incremental": FieldSpec("bool"),
     "num_threads": FieldSpec("integer", 1, optional=True),
     "view_memory": FieldSpec("number", 0.0, low_open=True, optional=True),
     "device": FieldSpec("text", test=_is_device, what="'cpu', 'cuda' or 'cuda:N'"),
-    "depth_scale_align": FieldSpec("bool"),
-    "refine_tolerance": FieldSpec("integer", 0, also=("auto",)),
     "min_relative_score": FieldSpec("number", 0.0, 1.0, high_open=True),
-    "color_explained": _unit(optional=True),
-    "silhouette_explained": _unit(optional=True),
-    "widened_band_color": _unit(optional=True),
-    "refine_passes": FieldSpec("integer", 1),
-    "expand_connected": FieldSpec("bool"),
-    "expand_color_bound": _unit(optional=True),
     "rounds": FieldSpec("integer", 1, also=("auto",)),
     "neighbours": FieldSpec("integer", 1, optional=True, also=("auto",)),
     "verify_views": FieldSpec("choice", choices=("auto", "centres", "mutual")),
@@ -513,21 +405,13 @@ PRESETS = {
     "default": FilterConfig(),
     # The paper's procedure exactly (DINOv3 features need a local checkpoint).
     "paper": FilterConfig(features="dinov3", verify_base="full", refine="none",
-                          verify_mask="proposals", verify_holes="count", depth_scale_align=False,
-                          refine_tolerance=0, min_relative_score=0.0, color_explained=None,
-                          silhouette_explained=None, widened_band_color=None,
-                          expand_color_bound=None, refine_passes=1, expand_connected=False,
-                          rounds=1, neighbours=None, verify_views="centres", verify_hidden=None,
+                          verify_holes="count", min_relative_score=0.0, rounds=1,
+                          neighbours=None, verify_views="centres", verify_hidden=None,
                           reveal_reference="composite"),
     # The paper's procedure with the weight-free features in place of DINOv3: what runs anywhere.
     "paper-local": FilterConfig(features="local", verify_base="full", refine="none",
-                                verify_mask="proposals", verify_holes="count",
-                                depth_scale_align=False, refine_tolerance=0,
-                                min_relative_score=0.0, color_explained=None,
-                                silhouette_explained=None, widened_band_color=None,
-                                expand_color_bound=None, refine_passes=1,
-                                expand_connected=False, rounds=1, neighbours=None,
-                                verify_views="centres", verify_hidden=None,
+                                verify_holes="count", min_relative_score=0.0, rounds=1,
+                                neighbours=None, verify_views="centres", verify_hidden=None,
                                 reveal_reference="composite"),
     # Today's default without the approximations that make it faster (bounded neighbourhoods
     # from 24 views on): the reference they are measured against (docs/method.md, "Dense

@@ -2,10 +2,10 @@
 
 Paper, "Candidate Verification": a candidate that passes its individual test is expanded to
 hat C_k, the Gaussians of its region dilated by ``dilation`` pixels within the support g_i,
-so that the soft edge of a distractor goes with it. With ``expand_connected`` it also takes
-every 8-connected group of pixels touching the region whose Gaussians stand in front of the
+so that the soft edge of a distractor goes with it. With refinement it also takes every
+8-connected group of pixels touching the region whose Gaussians stand in front of the
 static reference, within the cells of low similarity; beyond the candidate's own Gaussians
-it takes those in front of the static reference by depth, and with ``expand_color_bound``
+it takes those in front of the static reference by depth, and with ``refine.EXPAND_QUANTILE``
 also those whose colour differs from the other views' by more than the view's static content
 does.
 """
@@ -37,9 +37,9 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
     """
     config, revealing = state.config, refinement.revealing
     # Beyond the candidate's own Gaussians, only those in front by depth,
-    # and with ``expand_color_bound`` those whose colour is far beyond the static content's.
+    # and with ``refine.EXPAND_QUANTILE`` those whose colour is far beyond the static content's.
     expandable = refinement.expandable
-    grow = config.expand_connected and revealing is not None
+    grow = revealing is not None
     labels: dict = {}
     support: dict = {}      # view -> the support upsampled to pixels, made once
     for c in candidates:
@@ -60,7 +60,8 @@ def grow_connected(pixels: np.ndarray, view: int, labels: dict, front: np.ndarra
                    tau2) -> np.ndarray:
     """``pixels`` with every 8-connected component that it touches of ``front`` (the view's
     (H, W) pixels whose Gaussians stand in front of the static reference), within the cells of
-    similarity below tau2 (``expand_connected``); ``labels`` caches the components per view."""
+    similarity below tau2 (the support is judged per patch, and a distractor's patches where
+    the other views render little drop out of the paper's expansion); ``labels`` caches the components per view."""
     if view not in labels:
         grow = front.copy()
         h, w = grow.shape

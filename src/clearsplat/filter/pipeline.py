@@ -33,6 +33,7 @@ from .config import FilterConfig
 from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
+from . import refine as _refine
 from .refine import explained_candidates, refine, removed_pixels
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
@@ -168,8 +169,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     # Each candidate reads its pixels from its region (made from the grid cells when read).
     candidates = [Candidate(k, r.view, r.range, r, g if revealing is None
                             else g[revealing[g]]) for k, (r, g) in enumerate(zip(regions, raw))]
-    for p in proposals:         # pixels verification leaves out (``verify_mask``)
-        if config.verify_mask != "proposals":
+    for p in proposals:         # pixels verification leaves out (verify.range_masks)
+        if config.refine != "none":     # its Gaussians in front: its own likely distractors
             p.unreliable = refinement.unreliable_pixels[p.view]
         if removed is not None:
             p.unreliable = (removed[p.view] if p.unreliable is None
@@ -187,8 +188,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     # (clearsplat edit); only the accepted ones are removed.
     expand(state, candidates, proposals, region_map, refinement)
     if config.verify:
-        if config.color_explained is not None and refinement.color_distance is not None:
-            # ``color_explained``: static content out of register
+        if _refine.EXPLAINED_QUANTILE is not None and refinement.color_distance is not None:
+            # static content out of register
             passed = _unexplained(state, passed, raw, refinement)
         state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
@@ -208,8 +209,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
 
 def _unexplained(state, candidates: list, raw: list, refinement) -> list:
     """``candidates`` less those whose expansion the other views explain
-    (``color_explained``), which are rejected."""
-    quantile = state.config.color_explained
+    (:data:`~clearsplat.filter.refine.EXPLAINED_QUANTILE`), which are rejected."""
+    quantile = _refine.EXPLAINED_QUANTILE
     bounds = refinement.color_bounds
     explained = explained_candidates(candidates, raw, refinement.color_distance,
                                      state.index.members, quantile=quantile,

@@ -72,7 +72,7 @@ class ViewProposal:
     mask1, mask2 : (H, W) bool
         Unions of the first- and second-range regions [M_i^1, M_i^2].
     unreliable : (H, W) bool or None
-        Pixels that verification also leaves out (``FilterConfig.verify_mask``).
+        Pixels that verification also leaves out (:func:`~clearsplat.filter.verify.range_masks`).
     exclusion : (H, W, 3) float32 or None
         What the similarity compared the input with (kept for the diagnostic pictures): the
         exclusion render R_i^-i, or the reveal reference in its place (``reveal_reference``).

@@ -27,10 +27,34 @@ __all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "w
            "static_color_bound", "static_color_bounds", "explained_silhouettes",
            "beyond_static_colors"]
 
+# The default's refinement (``refine="static-depth"``; docs/method.md gives each its measurement).
+#: "In front": a Gaussian's depth below (1 - MARGIN) times the reference depth at its pixel
+#: (widened per view to 2.5 robust standard deviations of its depth ratio to the others).
+MARGIN = 0.02
+#: A Gaussian that touches the reference surface also qualifies where its view's input colour
+#: differs from the reference colour by more than this (L1 over RGB): the foot of an object.
+COLOR_THRESHOLD = 0.5
+#: Passes of the static reference: the first leaves out every proposed Gaussian of the other
+#: views, each later one only those the pass before kept, so that static content proposed
+#: around another view's distractor returns to the reference.
+PASSES = 2
+#: Quantiles of a view's colour distances outside every proposal region (how closely the other
+#: views reproduce its static content), each the bound of one colour test; None: that test off.
+#: A candidate whose expansion's median distance is within this is explained: rejected.
+EXPLAINED_QUANTILE = 0.75
+#: A kept Gaussian at the outline of what stands in front, within this, is a flying pixel of
+#: the surface behind: kept in the scene.
+SILHOUETTE_QUANTILE = 0.75
+#: Within the margin a view's depth noise adds, a colour beyond this qualifies.
+BAND_QUANTILE = 0.99
+#: Beyond the candidate's own Gaussians the expansion takes those kept for their colour alone
+#: only beyond this.
+EXPAND_QUANTILE = 0.99
+
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
 _STATIC_MIN_ALPHA = 0.1
-#: The colour test of ``refine_color`` needs the static reference this opaque at the pixel.
+#: The colour test (``COLOR_THRESHOLD``) needs the static reference this opaque at the pixel.
 _COLOR_MIN_ALPHA = 0.9
 #: With ``align_scale``: "in front" means beyond this many robust standard deviations of the
 #: view's depth ratio to the reference.
@@ -74,10 +98,10 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         Divide each view's depths by their median ratio to the reference depth first, and widen
         ``margin`` to 2.5 robust standard deviations of that ratio where the view's depth is
         noisier (:func:`clearsplat.filter.robust.view_depth_scales`): the test in the view's own
-        depth scale and noise (``FilterConfig.depth_scale_align``).
+        depth scale and noise (the refinement always).
     reference_rgbs_hi : list of (H, W, 3) float, optional
         Upper bounds of the reference colours; ``reference_rgbs`` are then the lower bounds and
-        the colour difference is the L1 distance to that box (``FilterConfig.refine_tolerance``).
+        the colour difference is the L1 distance to that box (the refinement's measured radius).
     workers : int, optional
         Threads, one view at a time each (default: the cores, at most ``OMP_NUM_THREADS``); the
         result does not depend on it.
@@ -96,7 +120,7 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         With ``color_distance``: per view, a colour distance. Where ``align_scale`` widens the
         view's margin, a Gaussian in front by more than ``margin`` but not by the widened
         margin also qualifies when its colour distance exceeds the view's entry (None: not in
-        that view; ``FilterConfig.widened_band_color``).
+        that view; ``BAND_QUANTILE``).
     """
     from .robust import view_depth_scales
     images = scene.images if images is None else images
@@ -209,7 +233,7 @@ def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
                          members: list, *, quantile: float,
                          bounds: list | None = None) -> list:
     """The candidates whose removal would take away only what the other views already show:
-    static content out of register (``FilterConfig.color_explained``).
+    static content out of register (``EXPLAINED_QUANTILE``).
 
     Each candidate judged gets ``scores["color"]``, the median distance over its Gaussians,
     and ``scores["color_bound"]``, its view's quantile.
@@ -294,7 +318,7 @@ def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
                           distances: np.ndarray, pixels: list, static: np.ndarray, *,
                           quantile: float) -> np.ndarray:
     """The Gaussians of ``revealing`` on its silhouette whose colour the other views show,
-    (N,) bool (``FilterConfig.silhouette_explained``).
+    (N,) bool (``SILHOUETTE_QUANTILE``).
 
     A depth network blurs depth across an object's outline, so the Gaussians of the surface
     pixels next to a distractor float between it and that surface (flying pixels): they stand
@@ -363,26 +387,26 @@ class Refinement:
         The Gaussians in front of the reference: the only ones a candidate keeps (None with
         ``refine="none"``).
     front_pixels : list of (H, W) bool, or None
-        Per view, the pixels holding one of its ``revealing`` Gaussians (where verification
-        or ``expand_connected`` needs them; None otherwise).
+        Per view, the pixels holding one of its ``revealing`` Gaussians (what verification
+        leaves out and the expansion grows into; None with ``refine="none"``).
     color_distance : (N,) float32 or None
         Per Gaussian, :func:`color_distances` to the last static reference (with
-        ``color_explained``, ``silhouette_explained`` or ``widened_band_color``; None
+        ``EXPLAINED_QUANTILE``, ``SILHOUETTE_QUANTILE`` or ``BAND_QUANTILE``; None
         otherwise).
     expandable : (N,) bool or None
         Of ``revealing``, those the expansion may take beyond a candidate's own Gaussians:
-        those that qualify by depth alone, and with ``expand_color_bound`` also those kept for
+        those that qualify by depth alone, and with ``EXPAND_QUANTILE`` also those kept for
         their colour alone whose colour distance exceeds their view's bound (with
-        ``refine="static-depth"`` and ``expand_color_bound``; None otherwise: the expansion
+        ``refine="static-depth"`` and ``EXPAND_QUANTILE``; None otherwise: the expansion
         takes every one of ``revealing``).
     margins : list of float, or None
         Per view, the margin of the last pass's depth test, widened by the view's depth noise
-        with ``depth_scale_align`` (:func:`revealing_gaussians`; None with ``refine="none"``):
+        (:func:`revealing_gaussians`; None with ``refine="none"``):
         what :func:`~clearsplat.filter.verify.seen_by_verifiers` widens its margins to.
     color_bounds : callable or None
         ``color_bounds(q)``: per view, the ``q`` quantile of the colour distances of its
         Gaussians outside every proposal region (:func:`static_color_bounds`; with
-        ``color_distance``, else None), what ``color_explained`` compares with.
+        ``color_distance``, else None), what ``EXPLAINED_QUANTILE`` selects.
     """
 
     revealing: np.ndarray | None
@@ -419,12 +443,11 @@ def refine(state, renders, images: list, raw: list) -> Refinement:
     raw : list of (M_k,) int64
         Every candidate's Gaussians C_k before refinement (the proposed Gaussians).
     """
-    config = state.config
     margins = [None] * state.num_views
     found = _revealing(state, renders, images, raw, margins)
     revealing, explained = found.revealing, found.explained
     front = unreliable = None
-    if revealing is not None and (config.verify_mask != "proposals" or config.expand_connected):
+    if revealing is not None:
         front = [pixels_of(state.scene, state.index, v, revealing)
                  for v in range(state.num_views)]
         unreliable = front
@@ -448,37 +471,32 @@ class _Found(NamedTuple):
 
 def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found:
     """The Gaussians in front of the reference of ``config.refine``, less the silhouettes it
-    explains (``silhouette_explained``; those as ``explained``); with ``color_explained``,
-    ``silhouette_explained``, ``widened_band_color`` or ``expand_color_bound``, each
-    Gaussian's colour distance to the last static reference and the per-view quantiles of the
-    static ones; with ``expand_color_bound``, those of the first the
-    expansion may take (``Refinement.expandable``). The last pass's margins go to ``margins``
-    (per view)."""
+    explains (``SILHOUETTE_QUANTILE``; those as ``explained``); with any of the colour tests'
+    quantiles, each Gaussian's colour distance to the last static reference and the per-view
+    quantiles of the static ones; with ``EXPAND_QUANTILE``, those the expansion may take
+    (``Refinement.expandable``). The last pass's margins go to ``margins`` (per view)."""
     config = state.config
     excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
         revealing = revealing_gaussians(state.scene, state.index, [r.depth for r in excl],
-                                        margin=config.refine_margin,
-                                        align_scale=config.depth_scale_align,
+                                        margin=MARGIN, align_scale=True,
                                         workers=config.num_threads, margins=margins)
         return _Found(revealing)    # no colour test: the expansion reads revealing
     if config.refine != "static-depth":
         return _Found(None)
     proposed = state.mask(*raw)
-    radii = config.refine_tolerance
-    if radii == "auto":   # each view's measured misregistration with the others
-        radii = thread_map(lambda i: misregistration(images[i], excl[i].rgb, excl[i].alpha),
-                           range(state.num_views), workers=config.num_threads)
+    # Each view's measured misregistration with the others: the colour test's radius.
+    radii = thread_map(lambda i: misregistration(images[i], excl[i].rgb, excl[i].alpha),
+                       range(state.num_views), workers=config.num_threads)
     revealing = distances = in_front = None
     members = member_depths(state.scene, state.index)     # the same in every pass
-    silhouettes, band = config.silhouette_explained, config.widened_band_color
-    explain = ((config.color_explained is not None and config.verify)
-               or silhouettes is not None or band is not None
-               or config.expand_color_bound is not None)
+    silhouettes, band = SILHOUETTE_QUANTILE, BAND_QUANTILE
+    explain = ((EXPLAINED_QUANTILE is not None and config.verify)
+               or silhouettes is not None or band is not None or EXPAND_QUANTILE is not None)
     bands = static = bounds = None
-    for k in range(config.refine_passes):
-        last = k == config.refine_passes - 1
-        # Each later pass (``refine_passes``) builds the static reference without only the
+    for k in range(PASSES):
+        last = k == PASSES - 1
+        # Each later pass builds the static reference without only the
         # proposed Gaussians that the previous pass kept, so that static content proposed
         # by some view (around another view's distractor) stays in the reference.
         # The reveal reference replaces the static one wherever it applies: only the other
@@ -498,17 +516,17 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
             if band is not None:
                 bands = bounds(band)
         revealing, in_front = _in_front(state, reference, images, members, distances,
-                                        by_depth=last and _by_depth(config),
+                                        by_depth=last and EXPAND_QUANTILE is not None,
                                         margins=margins, band_bounds=bands)
         proposed &= revealing
         # This pass's references are not read again: dropped before the next pass makes its
         # own, so that two passes' (four images per view) are never held at once.
         depths = rgbs = reference = None
-    expandable = in_front       # by depth; with ``expand_color_bound`` far-off colours too
+    expandable = in_front       # by depth; with ``EXPAND_QUANTILE`` far-off colours too
     if expandable is not None:
         expandable = expandable | beyond_static_colors(distances, revealing,
                                                        state.index.members,
-                                                       bounds(config.expand_color_bound))
+                                                       bounds(EXPAND_QUANTILE))
     explained = None
     if silhouettes is not None:     # flying pixels at a distractor's outline stay
         explained = explained_silhouettes(state.scene, state.index, revealing, distances,
@@ -517,12 +535,6 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
         if expandable is not None:
             expandable &= ~explained
     return _Found(revealing, distances, expandable, explained, bounds)
-
-
-def _by_depth(config) -> bool:
-    """Whether the refinement's last pass also tells which Gaussians qualify by depth, for the
-    expansion (``Refinement.expandable``): with ``expand_color_bound``."""
-    return config.expand_color_bound is not None
 
 
 def beyond_static_colors(distances: np.ndarray, selected: np.ndarray, members: list,
@@ -594,10 +606,10 @@ def _overlay_reveal(depths: list, rgbs: list, renders) -> None:
 
 def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
     """The static reference as the tests read it: ``(depths, rgb_lo, rgb_hi)``, widened by
-    ``radii`` (``refine_tolerance``) where set; ``rgb_hi`` None where nothing is widened. The
+    ``radii`` (each view's measured misregistration) where set; ``rgb_hi`` None where nothing is widened. The
     depths stay as they are: the nearest surface within a few pixels of a small object on a
     sloping floor is the floor in front of it, so a tolerant depth test drops most of such an
-    object (docs/method.md, "`refine_tolerance`")."""
+    object (docs/method.md, "The depth test at the Gaussian's own pixel")."""
     if np.isscalar(radii) and radii == 0:
         return reference, reference_rgb, None
     return tolerant_reference(reference, reference_rgb, radii, depth_radius=0)
@@ -610,10 +622,9 @@ def _in_front(state, reference: tuple, images: list, members: tuple,
     (:func:`_tolerant`), and with ``by_depth`` those it keeps by depth alone (else None)."""
     config = state.config
     depths, rgb_lo, rgb_hi = reference
-    out = revealing_gaussians(state.scene, state.index, depths, margin=config.refine_margin,
-                              reference_rgbs=rgb_lo,
-                              color_threshold=config.refine_color, images=images,
-                              align_scale=config.depth_scale_align,
+    out = revealing_gaussians(state.scene, state.index, depths, margin=MARGIN,
+                              reference_rgbs=rgb_lo, color_threshold=COLOR_THRESHOLD,
+                              images=images, align_scale=True,
                               reference_rgbs_hi=rgb_hi,
                               workers=config.num_threads, members=members,
                               color_distance=distances, by_depth=by_depth,

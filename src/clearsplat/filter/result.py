@@ -62,7 +62,7 @@ class Candidate:
         The verification views [V_i].
     scores : dict of str to float
         ``"individual"``, ``"additional"`` and ``"joint"`` where run; ``"color"`` and
-        ``"color_bound"`` where ``color_explained`` judged it (explained when the first is at
+        ``"color_bound"`` where the colour-explained test judged it (explained when the first is at
         most the second).
     accepted : bool
     reason : str

@@ -5,10 +5,10 @@ view's depth has its own scale, and estimated cameras are off by a fraction of a
 function here undoes one of those before the paper's comparisons, and each is switched by a
 :class:`FilterConfig` field (off in the ``paper`` presets):
 
-- :func:`view_depth_scales` (``depth_scale_align``): the scale of each view's depths relative to
+- :func:`view_depth_scales` (the refinement's depth test): the scale of each view's depths relative to
   what the other views render, so that "in front of the static surface" is judged in the
   view's own depth scale.
-- :func:`misregistration` and :func:`tolerant_reference` (``refine_tolerance``): how many
+- :func:`misregistration` and :func:`tolerant_reference` (the refinement's colour test): how many
   pixels a view's input and the other views' render are out of register, and the refinement's
   static reference widened by that radius (nearest surface, range of colours), so that static
   edges a few pixels off do not count as standing in front.

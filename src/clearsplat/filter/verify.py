@@ -41,7 +41,7 @@ __all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views",
            "seen_by_verifiers", "own_depth_map",
            "individual_tests", "second_range_tests"]
 
-#: ``verify_mask="auto"`` leaves the proposal regions in verification (``"revealing"``) from
+#: With refinement, verification leaves the proposal regions in (``"revealing"``) from
 #: this many views on (measured: needed at 8 and 16 views, harmful on clean 4-view scenes).
 _REVEALING_MASK_MIN_VIEWS = 8
 
@@ -241,8 +241,8 @@ def make_verifier(state, images: list):
 
 def exclusion_masks(proposals, rng: int, mode: str) -> list[np.ndarray]:
     """Q_j per view: M_j^1 for first-range candidates, M_j^1 | M_j^2 for second-range ones,
-    plus the view's unreliable pixels where ``verify_mask`` asks for them; only the unreliable
-    pixels with ``verify_mask="revealing"``."""
+    plus the view's unreliable pixels where it has them (``mode="proposals+revealing"``); only
+    the unreliable pixels with ``mode="revealing"``."""
     out = []
     for p in proposals:
         if mode == "revealing":
@@ -254,10 +254,15 @@ def exclusion_masks(proposals, rng: int, mode: str) -> list[np.ndarray]:
 
 
 def range_masks(state, proposals) -> dict:
-    """``{1: Q^1, 2: Q^2}``: the exclusion masks of each range (:func:`exclusion_masks`) in the
-    mode of ``verify_mask`` (``"auto"``: ``"revealing"`` from eight views on)."""
-    mode = state.config.verify_mask
-    if mode == "auto":
+    """``{1: Q^1, 2: Q^2}``: the exclusion masks of each range (:func:`exclusion_masks`).
+    Without refinement the proposal regions (the paper); with it also the pixels of each
+    verifying view's Gaussians in front of the static reference (its own likely distractors),
+    and from eight views on only those: there a proposal region of the verifying view is
+    often the candidate itself, seen from nearly the same place (docs/method.md,
+    "The verification mask")."""
+    if state.config.refine == "none":
+        mode = "proposals"
+    else:
         mode = ("revealing" if state.num_views >= _REVEALING_MASK_MIN_VIEWS
                 else "proposals+revealing")
     return {r: exclusion_masks(proposals, r, mode) for r in (1, 2)}
