@@ -350,3 +350,15 @@ def test_view_index_matches_a_direct_search_and_returns_int64():
         chosen = region_gaussians(scene, v, region.reshape(24, 32), index=index)
         assert chosen.dtype == np.int64
         assert np.array_equal(chosen[np.isin(chosen, want)], want)
+
+
+def test_no_gaussian_in_front_of_any_camera_returns_the_scene_unchanged():
+    """Wrong axes or poses put every Gaussian behind or outside every camera: one warning,
+    attributed to the caller, and nothing removed."""
+    world = make_world("object", num_views=3, height=24, width=32)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    scene.gaussians.means = -100.0 * scene.gaussians.means + 1000.0
+    with pytest.warns(UserWarning, match="no Gaussian is in front of any input camera") as rec:
+        result = filter_distractors(scene)
+    assert result.keep.all() and result.candidates == []
+    assert rec[0].filename == __file__

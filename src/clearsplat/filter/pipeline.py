@@ -151,12 +151,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     if previous is not None:    # every view taken or prepared again: drop what is left
         previous.release()
     if not renders.any_visible:
-        msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
-               "can be verified, the scene is returned unchanged")
-        warnings.warn(msg, stacklevel=3)
-        state.views.release()
-        return FilterResult(np.ones(len(scene), bool), [], [], state.clock.timings, config,
-                            [msg]), None
+        return _nothing_visible(state), None
     images = scene.images
     proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
     region_map = RegionMap(state)
@@ -165,16 +160,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     state.lap("regions")
     refinement = refine(state, renders, images, raw)                     # in front only
     state.lap("refine")
-    revealing = refinement.revealing
-    # Each candidate reads its pixels from its region (made from the grid cells when read).
-    candidates = [Candidate(k, r.view, r.range, r, g if revealing is None
-                            else g[revealing[g]]) for k, (r, g) in enumerate(zip(regions, raw))]
-    for p in proposals:         # pixels verification leaves out (verify.range_masks)
-        if config.refine != "none":     # its Gaussians in front: its own likely distractors
-            p.unreliable = refinement.unreliable_pixels[p.view]
-        if removed is not None:
-            p.unreliable = (removed[p.view] if p.unreliable is None
-                            else p.unreliable | removed[p.view])
+    candidates = _candidates(config, regions, raw, proposals, refinement, removed)
     state.lap("regions")
     state.clock.end_stage()
 
@@ -205,6 +191,34 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     keep = keep_mask(candidates, len(scene))
     state.clock.end_stage()
     return _finish(state, keep, candidates, proposals, renders, touched, hold)
+
+
+def _nothing_visible(state) -> FilterResult:
+    """The scene unchanged, with a warning: no Gaussian stands in front of any input camera."""
+    msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
+           "can be verified, the scene is returned unchanged")
+    warnings.warn(msg, stacklevel=4)
+    state.views.release()
+    return FilterResult(np.ones(state.n, bool), [], [], state.clock.timings, state.config,
+                        [msg])
+
+
+def _candidates(config, regions: list, raw: list, proposals: list, refinement,
+                removed: list | None) -> list:
+    """C_k of every region, refined (only its Gaussians in front), as candidates; each
+    proposal's ``unreliable`` set to the pixels its view's verification leaves out: its own
+    Gaussians in front (its likely distractors, with refinement) and ``removed``'s."""
+    revealing = refinement.revealing
+    # Each candidate reads its pixels from its region (made from the grid cells when read).
+    candidates = [Candidate(k, r.view, r.range, r, g if revealing is None
+                            else g[revealing[g]]) for k, (r, g) in enumerate(zip(regions, raw))]
+    for p in proposals:
+        if config.refine != "none":
+            p.unreliable = refinement.unreliable_pixels[p.view]
+        if removed is not None:
+            p.unreliable = (removed[p.view] if p.unreliable is None
+                            else p.unreliable | removed[p.view])
+    return candidates
 
 
 def _unexplained(state, candidates: list, raw: list, refinement) -> list:
