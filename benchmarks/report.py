@@ -541,7 +541,8 @@ and those it verifies, and picks verification views by the field of view shared 
 view is compared with its reveal reference (per pixel, the 0.75 quantile of the depths of its
 seven most co-visible views within 30 degrees, each rendered on its own), which outvotes the
 other views' passers-by; the `video` preset also leaves the frame on each side out
-(`leave_out=1`). Measurements: `docs/method.md`, "Dense captures", "`reveal_reference="quantile"`" and
+(`leave_out=1`). Measurements: `docs/method.md`, "Dense captures",
+"`reveal_reference="quantile"`" and
 "Video"; speed: the street rows of "Speed" above.
 """,
     "gpu": """## On a GPU

@@ -92,24 +92,36 @@ def test_tolerant_reference_takes_its_own_depth_radius():
     np.testing.assert_array_equal(two[1][1], tolerant_reference([depth], [rgb], 2)[1][0])
 
 
-def test_tolerant_widens_the_colours_by_the_measured_radii_and_not_the_depths():
-    """``_tolerant``: the colour radii as measured, the depths as they are (a tolerant depth
-    test drops small objects on sloping floors); radius 0 changes nothing."""
-    from types import SimpleNamespace
+def test_refinement_widens_the_colours_by_the_measured_radii_and_not_the_depths(monkeypatch):
+    """Each pass's static reference: the colours within each view's measured misregistration
+    (``robust.misregistration``), the depths as they are (a tolerant depth test drops small
+    objects on sloping floors)."""
+    from clearsplat.filter import refine, robust
+    measured, calls = [], []
+    real_misregistration, real_tolerant = robust.misregistration, robust.tolerant_reference
 
-    from clearsplat.filter.refine import _tolerant
-    rng = np.random.default_rng(6)
-    depths = [rng.uniform(1, 2, (6, 9)) for _ in range(2)]
-    rgbs = [rng.uniform(0, 1, (6, 9, 3)) for _ in range(2)]
-    measured = [0, 3]
-    state = SimpleNamespace(config=FilterConfig())
-    d, lo, hi = _tolerant(state, depths, rgbs, measured)
-    for v in range(2):
-        np.testing.assert_array_equal(d[v], depths[v])
-        ref = tolerant_reference([depths[v]], [rgbs[v]], measured[v])
-        np.testing.assert_array_equal(lo[v], ref[1][0])
-        np.testing.assert_array_equal(hi[v], ref[2][0])
-    assert _tolerant(state, depths, rgbs, 0) == (depths, rgbs, None)
+    def spy_misregistration(*args):
+        measured.append(real_misregistration(*args))
+        return measured[-1]
+
+    def spy_tolerant(depths, rgbs, radius, *, depth_radius=None):
+        out = real_tolerant(depths, rgbs, radius, depth_radius=depth_radius)
+        calls.append((depths, rgbs, radius, depth_radius, out))
+        return out
+    monkeypatch.setattr(refine, "misregistration", spy_misregistration)
+    monkeypatch.setattr(refine, "tolerant_reference", spy_tolerant)
+    world = make_world("object", num_views=4, seed=1, height=96, width=160)
+    scene, _ = realistic_reconstruction(world, "pose", seed=1)      # estimated poses
+    filter_distractors(scene, config=FilterConfig(rounds=1), extractor=get_extractor("local"))
+    assert len(calls) == refine.PASSES and len(measured) == scene.num_views
+    assert any(r > 0 for r in measured)          # some view is out of register here
+    for depths, rgbs, radius, depth_radius, (d, lo, hi) in calls:
+        assert sorted(radius) == sorted(measured) and depth_radius == 0
+        for v in range(scene.num_views):
+            np.testing.assert_array_equal(d[v], depths[v])
+            ref = tolerant_reference([depths[v]], [rgbs[v]], radius[v])
+            np.testing.assert_array_equal(lo[v], ref[1][0])
+            np.testing.assert_array_equal(hi[v], ref[2][0])
 
 
 def test_a_depth_radius_keeps_a_static_edge_that_another_view_places_a_pixel_away():

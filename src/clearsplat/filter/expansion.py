@@ -61,7 +61,8 @@ def grow_connected(pixels: np.ndarray, view: int, labels: dict, front: np.ndarra
     """``pixels`` with every 8-connected component that it touches of ``front`` (the view's
     (H, W) pixels whose Gaussians stand in front of the static reference), within the cells of
     similarity below tau2 (the support is judged per patch, and a distractor's patches where
-    the other views render little drop out of the paper's expansion); ``labels`` caches the components per view."""
+    the other views render little drop out of the paper's expansion); ``labels`` caches the
+    components per view."""
     if view not in labels:
         grow = front.copy()
         h, w = grow.shape

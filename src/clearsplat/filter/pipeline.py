@@ -152,13 +152,12 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
         previous.release()
     if not renders.any_visible:
         return _nothing_visible(state), None
-    images = scene.images
-    proposals = propose(state, renders, images, extractor)               # s_i, g_i, M_k
+    proposals = propose(state, renders, extractor)                       # s_i, g_i, M_k
     region_map = RegionMap(state)
     regions = [r for p in proposals for r in p.regions]
     raw = [region_map(r.view, r.pixels) for r in regions]                # C_k
     state.lap("regions")
-    refinement = refine(state, renders, images, raw)                     # in front only
+    refinement = refine(state, renders, raw)                             # in front only
     state.lap("refine")
     candidates = _candidates(config, regions, raw, proposals, refinement, removed)
     state.lap("regions")
@@ -166,7 +165,7 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
 
     state.clock.stage("verification")
     if config.verify:
-        verifier = make_verifier(state, images)
+        verifier = make_verifier(state)
         q = range_masks(state, proposals)
         passed = individual_tests(state, candidates, q, verifier, renders)
         state.lap("individual")

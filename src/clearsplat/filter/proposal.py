@@ -196,16 +196,14 @@ def propose_view(view: int, similarity: np.ndarray, alpha_excluded: np.ndarray,
     return out
 
 
-def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
+def propose(state, renders, extractor) -> list[ViewProposal]:
     """The proposal of every input view (the paper's "Distractor Proposal").
 
     Parameters
     ----------
     state : RoundState
     renders : ExclusionRenders
-        R_i and R_i^-i of every view.
-    images : list of (H, W, 3) float32
-        The input images the comparison uses.
+        R_i and R_i^-i of every view (compared with the scene's input images).
     extractor : FeatureExtractor
         Gives the similarity s_i between each input and its exclusion render.
 
@@ -216,6 +214,7 @@ def propose(state, renders, images: list, extractor) -> list[ViewProposal]:
     """
     # R_i^-i, or the reveal reference that stands in for it (``reveal_reference``).
     config, excl, full = state.config, renders.reference, renders.full
+    images = state.scene.images
     sims = []
     # A few views at a time: two stacks of every view's image would hold 2 x V images at
     # once (0.18 GB at 64 views of 256x448); the similarity of a pair does not depend on

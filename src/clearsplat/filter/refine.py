@@ -431,20 +431,19 @@ def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
     return depths, pixels
 
 
-def refine(state, renders, images: list, raw: list) -> Refinement:
+def refine(state, renders, raw: list) -> Refinement:
     """The Gaussians that may belong to a candidate, and their pixels.
 
     Parameters
     ----------
     state : RoundState
     renders : ExclusionRenders
-    images : list of (H, W, 3) float32
-        The input images the comparisons use.
+        Compared with the scene's input images.
     raw : list of (M_k,) int64
         Every candidate's Gaussians C_k before refinement (the proposed Gaussians).
     """
     margins = [None] * state.num_views
-    found = _revealing(state, renders, images, raw, margins)
+    found = _revealing(state, renders, state.scene.images, raw, margins)
     revealing, explained = found.revealing, found.explained
     front = unreliable = None
     if revealing is not None:
@@ -506,7 +505,11 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
         depths, rgbs = static_reference(state, renders.excl, proposed, needed=needed)
         if renders.reveal is not None:
             _overlay_reveal(depths, rgbs, renders)
-        reference = _tolerant(state, depths, rgbs, radii)
+        # The colours within each view's misregistration; the depths at the Gaussian's own
+        # pixel: the nearest surface within a few pixels of a small object on a sloping floor
+        # is the floor in front of it (docs/method.md, "The depth test at the Gaussian's own
+        # pixel").
+        reference = tolerant_reference(depths, rgbs, radii, depth_radius=0)
         if explain and last:   # measured once, read by both tests
             _, lo, hi = reference
             distances = color_distances(state.scene, state.index, lo, images, members[1],
@@ -604,22 +607,11 @@ def _overlay_reveal(depths: list, rgbs: list, renders) -> None:
         rgbs[i] = np.where(valid[..., None], color, rgbs[i])
 
 
-def _tolerant(state, reference: list, reference_rgb: list, radii) -> tuple:
-    """The static reference as the tests read it: ``(depths, rgb_lo, rgb_hi)``, widened by
-    ``radii`` (each view's measured misregistration) where set; ``rgb_hi`` None where nothing is widened. The
-    depths stay as they are: the nearest surface within a few pixels of a small object on a
-    sloping floor is the floor in front of it, so a tolerant depth test drops most of such an
-    object (docs/method.md, "The depth test at the Gaussian's own pixel")."""
-    if np.isscalar(radii) and radii == 0:
-        return reference, reference_rgb, None
-    return tolerant_reference(reference, reference_rgb, radii, depth_radius=0)
-
-
 def _in_front(state, reference: tuple, images: list, members: tuple,
               distances: np.ndarray | None = None, by_depth: bool = False,
               margins: list | None = None, band_bounds: list | None = None) -> tuple:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
-    (:func:`_tolerant`), and with ``by_depth`` those it keeps by depth alone (else None)."""
+    (:func:`~clearsplat.filter.robust.tolerant_reference`), and with ``by_depth`` those it keeps by depth alone (else None)."""
     config = state.config
     depths, rgb_lo, rgb_hi = reference
     out = revealing_gaussians(state.scene, state.index, depths, margin=MARGIN,

@@ -230,12 +230,13 @@ def top_views(seen: np.ndarray, view: int, count: int) -> list[int]:
     return [j for _, j in ranked[:count]]
 
 
-def make_verifier(state, images: list):
-    """The round's scorer against ``images``, leaving out holes where ``verify_holes`` asks."""
+def make_verifier(state):
+    """The round's scorer against the input images, leaving out holes where ``verify_holes``
+    asks."""
     config = state.config
     skip = (state.num_views <= 2 if config.verify_holes == "auto"
             else config.verify_holes == "skip")
-    return state.backend.verifier(state.views, images, epsilon=config.epsilon,
+    return state.backend.verifier(state.views, state.scene.images, epsilon=config.epsilon,
                                   hole_alpha=config.eta if skip else 0.0)
 
 
