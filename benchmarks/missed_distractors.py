@@ -62,11 +62,11 @@ import numpy as np
 from clearsplat.bench import parse_config
 from clearsplat.filter import filter_distractors
 from clearsplat.filter import reveal as rv
-from clearsplat.filter.association import MIN_WEIGHT, ViewIndex, region_gaussians
+from clearsplat.filter.association import MIN_WEIGHT, ViewIndex, member_pixels, region_gaussians
 from clearsplat.filter.neighbours import dense_options, view_plan
-from clearsplat.filter.refine import MARGIN, member_pixels, widened_margin
+from clearsplat.filter.refine import MARGIN
 from clearsplat.filter.reveal import reveal_plan, reveal_reference
-from clearsplat.filter.robust import view_depth_scales
+from clearsplat.filter.robust import view_depth_scales, widened_margin
 from clearsplat.render import prepare, render
 from clearsplat.synth import make_world, reconstruct
 from clearsplat.synth.backbone import distractor_truth
@@ -87,7 +87,7 @@ def _reveal_depths(scene, config):
     if plan is not None and plan.hoods is not None:
         allowed &= np.array(plan.hoods)
     neighbours_of = reveal_plan(scene, count=rv.VIEWS, max_angle=rv.MAX_ANGLE,
-                                allowed=allowed)
+                                allowed=allowed, depths=ViewIndex(scene).depths)
     out = []
     for v, (cam, others) in enumerate(zip(scene.cameras, neighbours_of)):
         excl = render(scene, cam, keep=np.abs(scene.view_id - v) > config.leave_out)

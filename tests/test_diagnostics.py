@@ -104,7 +104,7 @@ def test_reveal_depths_leave_out_the_views_beyond_the_parallax_limit(monkeypatch
     monkeypatch.setattr(reveal, "MAX_ANGLE", 20.0)
     monkeypatch.setattr(reveal, "MIN_VIEWS", 1)
     out = _script()._reveal_depths(scene, FilterConfig())
-    near = parallax_angles(scene.cameras, typical_depths(scene)) <= 20.0
+    near = parallax_angles(scene.cameras, typical_depths(ViewIndex(scene).depths)) <= 20.0
     hoods = _assert_reveal_depths(scene, out, near, 1)
     for v, others in enumerate(hoods):
         assert sorted(others) == [j for j in (v - 1, v + 1) if 0 <= j < scene.num_views]

@@ -269,7 +269,7 @@ def test_own_masks_are_built_when_asked_and_equal_the_gather(street):
         for leave_out in (0, 2):
             gap = np.abs(np.arange(v)[:, None] - np.arange(v)[None, :])
             left_out = gap <= leave_out
-            own = OwnMasks(ViewIndex(s), left_out, len(s))
+            own = OwnMasks(ViewIndex(s), left_out)
             assert len(own) == v
             for i in (0, 3, 3, v - 1, -1, 1):
                 np.testing.assert_array_equal(own[i], left_out[i][s.view_id])

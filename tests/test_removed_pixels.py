@@ -8,7 +8,7 @@ import pytest
 import clearsplat.filter.pipeline as pipeline
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
-from clearsplat.filter.refine import removed_pixels
+from clearsplat.filter.rounds import removed_pixels
 from clearsplat.scene import Scene
 from clearsplat.synth.realism import realistic_reconstruction
 from clearsplat.synth.worlds import make_world

@@ -8,6 +8,7 @@ import pytest
 
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
+from clearsplat.filter.association import ViewIndex
 from clearsplat.filter.neighbours import covisibility
 from clearsplat.filter.refine import _tiles_of, static_reference
 from clearsplat.filter.reveal import (MIN_ALPHA, parallax_angles, quantile_layers,
@@ -367,11 +368,17 @@ def test_reveal_plan_takes_the_most_shared_allowed_views_within_the_angle(video)
     v = scene.num_views
     c = covisibility(scene)
     shared = c + c.T
-    angles = parallax_angles(scene.cameras, typical_depths(scene))
+    depths = ViewIndex(scene).depths
+    typical = typical_depths(depths)
+    for i, cam in enumerate(scene.cameras):    # the median depth of its Gaussians in front
+        z = cam.to_camera(scene.gaussians.means[scene.view_id == i])[:, 2]
+        assert typical[i] == float(np.median(z[z > 0]))
+    angles = parallax_angles(scene.cameras, typical)
     allowed = ~np.eye(v, dtype=bool)
     allowed[:, 2] = False                          # view 2 may reveal nothing for anyone
     for max_angle in (None, float(np.median(angles[angles > 0]))):
-        plan = reveal_plan(scene, count=3, max_angle=max_angle, allowed=allowed)
+        plan = reveal_plan(scene, count=3, max_angle=max_angle, allowed=allowed,
+                           depths=depths)
         for i, others in enumerate(plan):
             ok = [j for j in range(v) if allowed[i, j]
                   and (max_angle is None or angles[i, j] <= max_angle)]

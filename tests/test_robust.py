@@ -1,4 +1,5 @@
-"""The filter's options for real backbones (clearsplat.filter.robust and where they plug in),
+"""The filter's options for real backbones (each view's depth noise, clearsplat.filter.robust;
+its colour noise and misregistration, clearsplat.filter.explained; and where they plug in),
 each against a slow reference or a closed form, and the paper presets untouched by them."""
 
 import dataclasses
@@ -10,8 +11,9 @@ from clearsplat import ClearsplatError
 from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.filter.association import ViewIndex
+from clearsplat.filter.explained import tolerant_reference
 from clearsplat.filter.refine import revealing_gaussians
-from clearsplat.filter.robust import tolerant_reference, view_depth_scales
+from clearsplat.filter.robust import view_depth_scales
 from clearsplat.filter.verify import Partial, change_weighted_terms
 from clearsplat.synth import make_world
 from clearsplat.synth.realism import realistic_reconstruction
@@ -29,9 +31,9 @@ def verify_removed_pixels(monkeypatch):
 
 @pytest.fixture
 def no_explained(monkeypatch):
-    """Without the colour-explained verdict (``refine.EXPLAINED_QUANTILE``)."""
-    from clearsplat.filter import refine
-    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", None)
+    """Without the colour-explained verdict (``explained.explained_candidates``: none)."""
+    from clearsplat.filter import explained
+    monkeypatch.setattr(explained, "explained_candidates", lambda candidates, noise, **k: [])
 
 
 def test_view_depth_scales_is_the_median_ratio():
@@ -94,11 +96,11 @@ def test_tolerant_reference_takes_its_own_depth_radius():
 
 def test_refinement_widens_the_colours_by_the_measured_radii_and_not_the_depths(monkeypatch):
     """Each pass's static reference: the colours within each view's measured misregistration
-    (``robust.misregistration``), the depths as they are (a tolerant depth test drops small
+    (``explained.misregistration``), the depths as they are (a tolerant depth test drops small
     objects on sloping floors)."""
-    from clearsplat.filter import refine, robust
+    from clearsplat.filter import explained, refine
     measured, calls = [], []
-    real_misregistration, real_tolerant = robust.misregistration, robust.tolerant_reference
+    real_misregistration, real_tolerant = explained.misregistration, explained.tolerant_reference
 
     def spy_misregistration(*args):
         measured.append(real_misregistration(*args))
@@ -150,7 +152,8 @@ def test_a_depth_radius_keeps_a_static_edge_that_another_view_places_a_pixel_awa
 def test_depth_scale_alignment_against_a_slow_reference():
     """``align_scale``: each view's depths divided by their median ratio to the reference and
     its margin widened by the ratio's spread; a slow per-view reference of the same rule."""
-    from clearsplat.filter.refine import _SPREAD_FACTOR, member_depths
+    from clearsplat.filter.association import member_depths
+    from clearsplat.filter.robust import _SPREAD_FACTOR
     world = make_world("object", num_views=3, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "depth", seed=0, clean=True)
     index = ViewIndex(scene)
@@ -241,13 +244,13 @@ def test_median_pool_neither_carried_nor_vetoed_by_one_view():
 def test_depth_scale_alignment_undoes_a_view_scale_bias():
     world = make_world("object", num_views=3, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "plain", seed=0, clean=True)
-    index = ViewIndex(scene)
     # Reference: the true depths; view 0 predicted 6 % too near (all of it "in front").
     means = scene.gaussians.means.copy()
     v0 = scene.view_id == 0
     cam = scene.cameras[0]
     means[v0] = cam.position + (means[v0] - cam.position) * 0.94
     scene.gaussians.means = means
+    index = ViewIndex(scene)    # the Gaussians' depths in their cameras, read once
     ref = [np.asarray(d, np.float64) for d in world.clean_depths]
     plain = revealing_gaussians(scene, index, ref, margin=0.02)
     aligned = revealing_gaussians(scene, index, ref, margin=0.02, align_scale=True)
@@ -350,11 +353,16 @@ def test_config_specs_read_values_with_a_plus():
         parse_config("default+revealing")
 
 
+def _grow_connected(pixels, front, proposal, tau2):
+    """What the expansion adds to a candidate's pixels: every group of ``front`` it touches."""
+    from clearsplat.filter.expansion import growth_labels
+    from clearsplat.filter.masks import touched_components
+    return pixels | touched_components(growth_labels(front, proposal.similarity, tau2), pixels)
+
+
 def test_grow_connected_adds_the_touched_in_front_groups_of_low_similarity():
     from types import SimpleNamespace
     from clearsplat import Camera, Gaussians, Scene
-    from clearsplat.filter.expansion import grow_connected as _grow_connected
-    from clearsplat.filter.refine import pixels_of
     h, w = 8, 8
     n = h * w
     cam = Camera(np.array([[8.0, 0, 4], [0, 8.0, 4], [0, 0, 1]]), np.eye(4), w, h)
@@ -372,16 +380,16 @@ def test_grow_connected_adds_the_touched_in_front_groups_of_low_similarity():
     proposal = SimpleNamespace(similarity=similarity)
     region = np.zeros((h, w), bool)
     region[2, 1] = True
-    front_px = pixels_of(scene, index, 0, front.ravel())
+    front_px = index.pixels_of(0, front.ravel())
     np.testing.assert_array_equal(front_px, front)     # pixel-aligned: Gaussian k at pixel k
-    out = _grow_connected(region, 0, {}, front_px, proposal, 0.69)
+    out = _grow_connected(region, front_px, proposal, 0.69)
     expected = region.copy()
     expected[1:3, 1:4] = True       # the touched group, cut at the similar cell
     np.testing.assert_array_equal(out, expected)
     # a region touching nothing in front stays as it is
     lone = np.zeros((h, w), bool)
     lone[5, 0] = True
-    np.testing.assert_array_equal(_grow_connected(lone, 0, {}, front_px, proposal, 0.69), lone)
+    np.testing.assert_array_equal(_grow_connected(lone, front_px, proposal, 0.69), lone)
 
 
 def test_expand_connected_only_adds_to_the_expansion(soft_scene, monkeypatch):
@@ -389,7 +397,8 @@ def test_expand_connected_only_adds_to_the_expansion(soft_scene, monkeypatch):
     scene, _ = soft_scene
     ex = get_extractor("local")
     on = filter_distractors(scene, extractor=ex)
-    monkeypatch.setattr(expansion, "grow_connected", lambda pixels, *args: pixels)
+    monkeypatch.setattr(expansion, "touched_components",
+                        lambda labels, pixels: np.zeros_like(pixels))
     off = filter_distractors(scene, extractor=ex)
     assert [c.scores.get("individual") for c in on.candidates] == \
         [c.scores.get("individual") for c in off.candidates]
@@ -419,20 +428,23 @@ def test_revealing_by_depth_is_the_test_without_colours():
 
 def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_scene,
                                                                        monkeypatch):
-    """``refine.EXPAND_QUANTILE`` decides every candidate's individual test as before and expands
-    each to a set between the depth-only expansion (no Gaussian taken for its colour alone)
-    and the one without a bound, which holds the candidate's own Gaussians."""
-    from clearsplat.filter import refine as refine_stage
+    """The expansion's colour reach (``explained.ColorNoise.beyond`` at ``explained.BEYOND``)
+    decides every candidate's individual test as before and expands each to a set between the
+    depth-only expansion (no Gaussian taken for its colour alone) and the one without a bound
+    (every Gaussian kept for its colour alone is beyond), which holds the candidate's own
+    Gaussians."""
+    from clearsplat.filter import explained
     scene, _ = soft_scene
     ex = get_extractor("local")
     cfg = FilterConfig(rounds=1, verify_hidden=None)
     bounded = filter_distractors(scene, config=cfg, extractor=ex)
-    assert refine_stage.EXPAND_QUANTILE == 0.99
-    monkeypatch.setattr(refine_stage, "EXPAND_QUANTILE", None)
+    assert explained.BEYOND == 0.99
+    monkeypatch.setattr(explained.ColorNoise, "beyond",
+                        lambda self, selected, quantile=None: selected.copy())
     every = filter_distractors(scene, config=cfg, extractor=ex)
-    monkeypatch.setattr(refine_stage, "EXPAND_QUANTILE", 0.99)
-    monkeypatch.setattr(refine_stage, "beyond_static_colors",
-                        lambda distances, *args: np.zeros(distances.shape, dtype=bool))
+    monkeypatch.setattr(explained.ColorNoise, "beyond",
+                        lambda self, selected, quantile=None:
+                        np.zeros(self.distances.shape, dtype=bool))
     runs = [filter_distractors(scene, config=cfg, extractor=ex), bounded, every]
     scores = [[c.scores.get("individual") for c in r.candidates] for r in runs]
     assert scores[0] == scores[1] == scores[2]
@@ -447,26 +459,36 @@ def test_expansion_colour_bound_lies_between_depth_only_and_every_colour(soft_sc
     assert below > 0 and above > 0
 
 
-def test_beyond_static_colors_matches_the_definition():
-    from clearsplat.filter.refine import beyond_static_colors, static_color_bounds
+def test_color_noise_beyond_matches_the_definition():
+    from clearsplat.filter import explained
+    from clearsplat.filter.explained import ColorNoise
     rng = np.random.default_rng(7)
     n = 600
     distances = rng.uniform(0, 1, n).astype(np.float32)
     distances[rng.uniform(size=n) < 0.1] = np.nan
     selected = rng.uniform(size=n) < 0.5
-    static = (rng.uniform(size=n) < 0.6) & np.isfinite(distances)
+    unproposed = rng.uniform(size=n) < 0.6
     members = [np.flatnonzero(np.arange(n) % 3 == v) for v in range(3)]
     members.append(np.array([], dtype=np.int64))
-    static[members[2]] = False          # a view without static Gaussians: nothing beyond
+    unproposed[members[2]] = False      # a view without static Gaussians: nothing beyond
+    raw = [np.flatnonzero(~unproposed)[k::2] for k in range(2)]    # what the proposals cover
+    noise = ColorNoise(distances, raw, members)
+    static = unproposed & np.isfinite(distances)
+    np.testing.assert_array_equal(noise.static, static)
+    # Without a quantile: explained.BEYOND.
+    np.testing.assert_array_equal(noise.beyond(selected),
+                                  noise.beyond(selected, explained.BEYOND))
     for q in (0.0, 0.5, 0.99, 1.0):
-        bounds = static_color_bounds(distances, static, members)(q)
-        got = beyond_static_colors(distances, selected, members, bounds)
+        got = noise.beyond(selected, q)
         want = np.zeros(n, dtype=bool)
-        for m in members:
+        for v, m in enumerate(members):
             ref = [float(distances[i]) for i in m if static[i]]
             if not ref:
+                assert noise.bounds(q)[v] is None
                 continue
             bound = float(np.quantile(np.array(ref), q))
+            # The noise's bound: that quantile, taken in the distances' own precision.
+            assert noise.bounds(q)[v] == float(np.quantile(np.array(ref, distances.dtype), q))
             for i in m:
                 want[i] = bool(selected[i]) and float(distances[i]) > bound
         np.testing.assert_array_equal(got, want)
@@ -617,7 +639,7 @@ def test_rounds_auto_runs_a_second_round_from_sixteen_views(round_calls):
 @pytest.mark.parametrize("seed", range(6))
 def test_box_extreme_matches_scipy(seed):
     from scipy import ndimage
-    from clearsplat.filter.robust import box_extreme
+    from clearsplat.filter.explained import box_extreme
     rng = np.random.default_rng(seed)
     h, w = rng.integers(1, 30, size=2)
     a = rng.normal(size=(h, w, 3)).astype(np.float32 if seed % 2 else np.float64)
@@ -692,8 +714,12 @@ def test_later_round_renders_on_images_not_a_multiple_of_the_tile(verify_removed
 def test_rounds_with_color_explained_are_runs_on_what_each_kept(verify_removed_pixels,
                                                                 monkeypatch):
     """The colour-explained verdict acts within each round, on that round's Gaussians."""
-    from clearsplat.filter import refine
-    monkeypatch.setattr(refine, "EXPLAINED_QUANTILE", 0.9)
+    from clearsplat.filter import explained
+    # The verdict alone at a wider quantile than the default's (the silhouettes at
+    # explained.EXPLAINED): the candidates reject_explained reads.
+    verdict = explained.explained_candidates
+    monkeypatch.setattr(explained, "explained_candidates",
+                        lambda candidates, noise, **k: verdict(candidates, noise, quantile=0.9))
     world = make_world("street", num_views=8, seed=0, height=64, width=112)
     scene, _ = realistic_reconstruction(world, "pose", seed=0)
     ex = get_extractor("local")
@@ -704,11 +730,13 @@ def test_rounds_with_color_explained_are_runs_on_what_each_kept(verify_removed_p
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_widened_band_qualifies_by_colour_within_the_views_depth_noise(seed):
-    """``band_bounds`` (``refine.BAND_QUANTILE``): where the view's depth noise widens its
-    margin, a Gaussian in front by more than ``margin`` but within the widened margin qualifies
-    when its colour distance exceeds its view's bound; a slow per-view reference of the rule.
+    """``band_bounds`` (the refinement's: its colour noise at ``explained.BEYOND``): where the
+    view's depth noise widens its margin, a Gaussian in front by more than ``margin`` but within
+    the widened margin qualifies when its colour distance exceeds its view's bound; a slow
+    per-view reference of the rule.
     Without a widened margin, or without a bound, nothing changes."""
-    from clearsplat.filter.refine import _SPREAD_FACTOR, member_depths
+    from clearsplat.filter.association import member_depths
+    from clearsplat.filter.robust import _SPREAD_FACTOR
     world = make_world("object", num_views=3, seed=4, height=48, width=80)
     scene, _ = realistic_reconstruction(world, "depth", seed=seed, clean=True)
     index = ViewIndex(scene)
@@ -755,7 +783,10 @@ def test_widened_band_color_finds_what_depth_noise_hides(monkeypatch):
     extractor = get_extractor("local")
     from clearsplat.filter import refine
     on = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
-    monkeypatch.setattr(refine, "BAND_QUANTILE", None)
+    # Without the band test: the refinement's revealing_gaussians without band_bounds.
+    real = refine.revealing_gaussians
+    monkeypatch.setattr(refine, "revealing_gaussians",
+                        lambda *args, **kwargs: real(*args, **{**kwargs, "band_bounds": None}))
     off = filter_distractors(scene, config=FilterConfig(), extractor=extractor)
     recall = [(~r.keep & truth).sum() / truth.sum() for r in (off, on)]
     static = [(~r.keep & ~truth).sum() / (~truth).sum() for r in (off, on)]

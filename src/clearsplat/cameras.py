@@ -153,6 +153,28 @@ class Camera:
             v = self.K[1, 1] * pc[:, 1] / z + self.K[1, 2]
         return np.stack([u, v], axis=1), z
 
+    def flat_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pixel of this camera's image that each world point falls in.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like
+            World coordinates.
+
+        Returns
+        -------
+        pixels : (M,) int64
+            Flat pixel index ``row * width + col``; -1 behind the camera or outside the image.
+        z : (M,) float64
+            Depth along the optical axis.
+        """
+        uv, z = self.project(points)
+        with np.errstate(invalid="ignore"):
+            col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
+            row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
+        ok = (z > 0) & (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        return np.where(ok, row * self.width + col, -1).astype(np.int64), z
+
     def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
         """World-space rays through every pixel centre.
 

@@ -1,7 +1,9 @@
 """From image regions to Gaussians.
 
 Paper, end of "Distractor Proposal": a region M_k of view i maps to the Gaussians C_k that
-view i predicted there (:func:`region_gaussians`; :class:`RegionMap` for a round).
+view i predicted there (:func:`region_gaussians`; :class:`RegionMap` for a round). Each
+Gaussian's view and pixel (:func:`member_pixels`: its ``pixel_id``, or the pixel its centre
+projects to) is what every stage reads of the association.
 """
 
 from __future__ import annotations
@@ -12,11 +14,13 @@ from ..render import contributions
 from ..scene import Scene
 
 
-__all__ = ["ViewIndex", "RegionMap", "view_members", "region_gaussians"]
+__all__ = ["ViewIndex", "RegionMap", "view_members", "region_gaussians", "member_pixels",
+           "member_depths"]
 
 
 class ViewIndex:
-    """Per-view lists of Gaussian indices and their pixel ids, built once per scene."""
+    """Per-view lists of Gaussian indices, their pixel ids, and their pixels and depths in
+    their view's camera, built once per round."""
 
     def __init__(self, scene: Scene):
         # Indices and pixel ids are held as int32 where they fit (half the memory of int64 at
@@ -33,6 +37,21 @@ class ViewIndex:
             by = aligned[np.argsort(pid[aligned], kind="stable")]
             starts = np.searchsorted(pid[by], np.arange(cam.width * cam.height + 1))
             self._by_pixel.append((self.members[i][by], _narrow(starts, len(scene))))
+        self.n = len(scene)
+        self.shapes = [(cam.height, cam.width) for cam in scene.cameras]
+        #: Per view, its Gaussians' camera depths and pixels in its image (:func:`member_depths`):
+        #: what every depth and colour test of a round reads.
+        self.depths, self.image_pixels = member_depths(scene, self)
+
+    def pixels_of(self, view: int, selected: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the pixels of ``view`` holding one of its ``selected`` ((N,) bool)
+        Gaussians."""
+        h, w = self.shapes[view]
+        out = np.zeros(h * w, dtype=bool)
+        pix = self.image_pixels[view]
+        if pix is not None:
+            out[pix[selected[self.members[view]] & (pix >= 0)]] = True
+        return out.reshape(h, w)
 
     def at_pixels(self, view: int, flat_pixels: np.ndarray) -> np.ndarray:
         """Pixel-aligned Gaussians of ``view`` at the given flat pixel indices (unsorted)."""
@@ -136,3 +155,29 @@ class RegionMap:
         return region_gaussians(self.scene, view, pixels, index=self.index,
                                 min_weight=self.min_weight,
                                 prepared=self.views[view] if self.loose[view] else None)
+
+
+def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
+    """Flat pixel of each Gaussian of ``view`` in that view's image, (M,) int64, -1 if none.
+
+    ``pixel_id`` where the model is pixel-aligned, otherwise the pixel its centre projects to.
+    """
+    members = index.members[view]
+    pix = index.pixels[view].astype(np.int64)
+    loose = pix < 0
+    if loose.any():
+        pix[loose] = scene.cameras[view].flat_pixels(scene.gaussians.means[members[loose]])[0]
+    return pix
+
+
+def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
+    """Per view, the camera depth (M,) float64 and the pixel (M,) int64 (:func:`member_pixels`)
+    of each of its Gaussians (None for a view without any): what every depth test of a round
+    reads. Computed in the calling thread: matrix products, left to BLAS as they are, whose
+    own threads must not depend on ours."""
+    # The z column copied out, so that the (M, 3) camera coordinates are not held with it.
+    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2].copy()
+              if members.size else None for view, members in enumerate(index.members)]
+    pixels = [member_pixels(scene, index, view) if members.size else None
+              for view, members in enumerate(index.members)]
+    return depths, pixels

@@ -79,7 +79,7 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         if state.plan is not None and state.plan.hoods is not None:
             allowed = allowed & np.array(state.plan.hoods)
         plan = reveal_plan(scene, count=rv.VIEWS, max_angle=rv.MAX_ANGLE,
-                           allowed=allowed, members=state.index.members)
+                           allowed=allowed, depths=state.index.depths)
     any_visible = False
     for i in range(scene.num_views):
         pv = views[i]

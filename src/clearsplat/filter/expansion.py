@@ -5,9 +5,8 @@ hat C_k, the Gaussians of its region dilated by ``dilation`` pixels within the s
 so that the soft edge of a distractor goes with it. With refinement it also takes every
 8-connected group of pixels touching the region whose Gaussians stand in front of the
 static reference, within the cells of low similarity; beyond the candidate's own Gaussians
-it takes those in front of the static reference by depth, and with ``refine.EXPAND_QUANTILE``
-also those whose colour differs from the other views' by more than the view's static content
-does.
+it takes those in front of the static reference by depth, and those whose colour is beyond
+the view's colour noise (:mod:`.explained`).
 """
 
 from __future__ import annotations
@@ -17,7 +16,7 @@ import numpy as np
 from ..features import upsample_nearest
 from .masks import dilate, label8, touched_components
 
-__all__ = ["expand", "grow_connected"]
+__all__ = ["expand", "growth_labels"]
 
 
 def expand(state, candidates: list, proposals: list, region_map, refinement) -> None:
@@ -36,19 +35,21 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
         pixels.
     """
     config, revealing = state.config, refinement.revealing
-    # Beyond the candidate's own Gaussians, only those in front by depth,
-    # and with ``refine.EXPAND_QUANTILE`` those whose colour is far beyond the static content's.
+    # Beyond the candidate's own Gaussians, only those in front by depth and those whose
+    # colour is beyond the view's colour noise (Refinement.expandable).
     expandable = refinement.expandable
     grow = revealing is not None
-    labels: dict = {}
+    labels: dict = {}       # view -> its groups of pixels in front, made once
     support: dict = {}      # view -> the support upsampled to pixels, made once
     for c in candidates:
         if c.view not in support:
             support[c.view] = proposals[c.view].support_pixels
+            if grow:
+                labels[c.view] = growth_labels(refinement.front_pixels[c.view],
+                                               proposals[c.view].similarity, state.tau2)
         pixels = dilate(c.pixels, config.dilation) & support[c.view]
-        if grow:
-            pixels = grow_connected(pixels, c.view, labels, refinement.front_pixels[c.view],
-                                    proposals[c.view], state.tau2)
+        if grow:    # and every group that it touches
+            pixels = pixels | touched_components(labels[c.view], pixels)
         g = region_map(c.view, pixels)
         if expandable is not None:
             c.expanded = g[expandable[g] | np.isin(g, c.gaussians)]
@@ -56,16 +57,11 @@ def expand(state, candidates: list, proposals: list, region_map, refinement) -> 
             c.expanded = g if revealing is None else g[revealing[g]]
 
 
-def grow_connected(pixels: np.ndarray, view: int, labels: dict, front: np.ndarray, proposal,
-                   tau2) -> np.ndarray:
-    """``pixels`` with every 8-connected component that it touches of ``front`` (the view's
-    (H, W) pixels whose Gaussians stand in front of the static reference), within the cells of
-    similarity below tau2 (the support is judged per patch, and a distractor's patches where
-    the other views render little drop out of the paper's expansion); ``labels`` caches the
-    components per view."""
-    if view not in labels:
-        grow = front.copy()
-        h, w = grow.shape
-        grow &= upsample_nearest(proposal.similarity < tau2, h, w)
-        labels[view] = label8(grow)[0]
-    return pixels | touched_components(labels[view], pixels)
+def growth_labels(front: np.ndarray, similarity: np.ndarray, tau2: float) -> np.ndarray:
+    """(H, W) int labels of the 8-connected groups of ``front`` (the view's pixels whose
+    Gaussians stand in front of the static reference) within the cells of ``similarity``
+    (the view's feature grid) below ``tau2``; 0 outside them. The support is judged per
+    patch, and a distractor's patches where the other views render little drop out of the
+    paper's expansion: an accepted candidate also takes every group it touches."""
+    low = upsample_nearest(similarity < tau2, *front.shape)
+    return label8(front & low)[0]

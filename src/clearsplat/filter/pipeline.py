@@ -10,7 +10,7 @@ exclusion renders R_i, R_i^-i          :mod:`.exclusion`
 reveal reference (an option)           :mod:`.reveal`
 proposals (s_i, g_i, B_i, M_k)         :mod:`.proposal`
 regions to Gaussians (C_k)             :mod:`.association`
-refinement                             :mod:`.refine`
+refinement                             :mod:`.refine` (colour: :mod:`.explained`)
 individual verification (and scores)   :mod:`.verify`
 expansion (hat C_k)                    :mod:`.expansion`
 second range: additional, joint        :mod:`.verify`
@@ -33,11 +33,11 @@ from .config import FilterConfig
 from .exclusion import exclusion_renders
 from .expansion import expand
 from .proposal import propose
-from . import refine as _refine
-from .refine import explained_candidates, refine, removed_pixels
+from .explained import reject_explained
+from .refine import refine
 from .neighbours import dense_options, view_plan
 from .result import Candidate, FilterResult
-from .rounds import Carry, held_bytes, in_round, kept_scene, merge_round
+from .rounds import Carry, held_bytes, in_round, kept_scene, merge_round, removed_pixels
 from .state import Progress, RoundState
 from .verify import (individual_tests, make_verifier, range_masks, second_range_tests,
                      seen_by_verifiers)
@@ -48,6 +48,8 @@ __all__ = ["Candidate", "FilterResult", "filter_distractors", "run_round"]
 #: scenarios: +0.58 dB at 16 views, +0.18 dB at 8 for 1.6 times the time, +0.02 dB at 4; with
 #: ``min_relative_score`` it also keeps the 8-view recall, docs/method.md).
 _SECOND_ROUND_MIN_VIEWS = 8
+_NOTHING_VISIBLE = ("no Gaussian is in front of any input camera (wrong axes or poses?): "
+                    "nothing can be verified, the scene is returned unchanged")
 
 
 def filter_distractors(scene: Scene, *, config: FilterConfig | None = None,
@@ -150,8 +152,11 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     renders = exclusion_renders(state, touched, previous)                 # R_i, R_i^-i
     if previous is not None:    # every view taken or prepared again: drop what is left
         previous.release()
-    if not renders.any_visible:
-        return _nothing_visible(state), None
+    if not renders.any_visible:     # wrong axes or poses: the scene as it is
+        warnings.warn(_NOTHING_VISIBLE, stacklevel=3)
+        state.views.release()
+        return FilterResult.unchanged(state.n, config, _NOTHING_VISIBLE,
+                                      state.clock.timings), None
     proposals = propose(state, renders, extractor)                       # s_i, g_i, M_k
     region_map = RegionMap(state)
     regions = [r for p in proposals for r in p.regions]
@@ -173,9 +178,8 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     # (clearsplat edit); only the accepted ones are removed.
     expand(state, candidates, proposals, region_map, refinement)
     if config.verify:
-        if _refine.EXPLAINED_QUANTILE is not None and refinement.color_distance is not None:
-            # static content out of register
-            passed = _unexplained(state, passed, raw, refinement)
+        if refinement.noise is not None:    # static content out of register
+            passed = reject_explained(passed, refinement.noise)
         state.lap("expand")
         second_range_tests(state, passed, q[2], verifier, renders)     # additional, joint
         state.lap("second_range")
@@ -190,16 +194,6 @@ def run_round(scene: Scene, config: FilterConfig, extractor, backend, report: Pr
     keep = keep_mask(candidates, len(scene))
     state.clock.end_stage()
     return _finish(state, keep, candidates, proposals, renders, touched, hold)
-
-
-def _nothing_visible(state) -> FilterResult:
-    """The scene unchanged, with a warning: no Gaussian stands in front of any input camera."""
-    msg = ("no Gaussian is in front of any input camera (wrong axes or poses?): nothing "
-           "can be verified, the scene is returned unchanged")
-    warnings.warn(msg, stacklevel=4)
-    state.views.release()
-    return FilterResult(np.ones(state.n, bool), [], [], state.clock.timings, state.config,
-                        [msg])
 
 
 def _candidates(config, regions: list, raw: list, proposals: list, refinement,
@@ -218,20 +212,6 @@ def _candidates(config, regions: list, raw: list, proposals: list, refinement,
             p.unreliable = (removed[p.view] if p.unreliable is None
                             else p.unreliable | removed[p.view])
     return candidates
-
-
-def _unexplained(state, candidates: list, raw: list, refinement) -> list:
-    """``candidates`` less those whose expansion the other views explain
-    (:data:`~clearsplat.filter.refine.EXPLAINED_QUANTILE`), which are rejected."""
-    quantile = _refine.EXPLAINED_QUANTILE
-    bounds = refinement.color_bounds
-    explained = explained_candidates(candidates, raw, refinement.color_distance,
-                                     state.index.members, quantile=quantile,
-                                     bounds=None if bounds is None else bounds(quantile))
-    for c in explained:
-        c.reason = "explained by the other views: static content out of register"
-    out = {c.index for c in explained}
-    return [c for c in candidates if c.index not in out]
 
 
 def keep_mask(candidates: list, n: int) -> np.ndarray:

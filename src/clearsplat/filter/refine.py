@@ -5,27 +5,27 @@ distractor only where removing view i's Gaussians reveals a farther surface. The
 this per patch; :func:`revealing_gaussians` tests it per Gaussian against a reference depth.
 The reference is R_i^-i (``refine="depth"``) or, by default, the *static reference*
 (``refine="static-depth"``): R_i^-i without any proposed Gaussian, so that another view's
-distractor in front of view i's cannot hide it (:func:`static_reference`).
+distractor in front of view i's cannot hide it (:func:`static_reference`). The default reads
+depth in each view's own scale and noise (:mod:`.robust`) and colour against each view's own
+colour noise (:mod:`.explained`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from .._threads import thread_map
 from ..scene import Scene
+from . import explained as _explained
 from .association import ViewIndex
-from .masks import dilate8
-from .robust import misregistration, tolerant_reference
+from .explained import (ColorNoise, box_distance, color_distances, misregistration,
+                        tolerant_reference)
+from .robust import view_depth_scales, widened_margin
 
-__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians", "widened_margin",
-           "member_depths", "member_pixels", "centre_pixels", "pixels_of", "removed_pixels",
-           "box_distance", "color_distances", "explained_candidates", "static_mask",
-           "static_color_bound", "static_color_bounds", "explained_silhouettes",
-           "beyond_static_colors"]
+__all__ = ["Refinement", "refine", "static_reference", "revealing_gaussians"]
 
 # The default's refinement (``refine="static-depth"``; docs/method.md gives each its measurement).
 #: "In front": a Gaussian's depth below (1 - MARGIN) times the reference depth at its pixel
@@ -38,27 +38,12 @@ COLOR_THRESHOLD = 0.5
 #: views, each later one only those the pass before kept, so that static content proposed
 #: around another view's distractor returns to the reference.
 PASSES = 2
-#: Quantiles of a view's colour distances outside every proposal region (how closely the other
-#: views reproduce its static content), each the bound of one colour test; None: that test off.
-#: A candidate whose expansion's median distance is within this is explained: rejected.
-EXPLAINED_QUANTILE = 0.75
-#: A kept Gaussian at the outline of what stands in front, within this, is a flying pixel of
-#: the surface behind: kept in the scene.
-SILHOUETTE_QUANTILE = 0.75
-#: Within the margin a view's depth noise adds, a colour beyond this qualifies.
-BAND_QUANTILE = 0.99
-#: Beyond the candidate's own Gaussians the expansion takes those kept for their colour alone
-#: only beyond this.
-EXPAND_QUANTILE = 0.99
 
 #: Below this accumulated opacity the static reference (R_i^-i without any proposed Gaussian)
 #: counts as a hole, and the plain exclusion render's depth is used instead.
 _STATIC_MIN_ALPHA = 0.1
 #: The colour test (``COLOR_THRESHOLD``) needs the static reference this opaque at the pixel.
 _COLOR_MIN_ALPHA = 0.9
-#: With ``align_scale``: "in front" means beyond this many robust standard deviations of the
-#: view's depth ratio to the reference.
-_SPREAD_FACTOR = 2.5
 
 
 def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[np.ndarray], *,
@@ -76,8 +61,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     The paper's depth condition asks, per patch, that excluding view i's Gaussians reveal a
     farther surface. This applies it per Gaussian: a Gaussian of view i qualifies when its
     camera-i depth is below ``(1 - margin)`` times the reference depth at its pixel (see
-    :func:`member_pixels`). Where the reference shows nothing, nothing is revealed and it does
-    not qualify.
+    :attr:`~clearsplat.filter.association.ViewIndex.image_pixels`). Where the reference
+    shows nothing, nothing is revealed and it does not qualify.
 
     Parameters
     ----------
@@ -106,7 +91,8 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         Threads, one view at a time each (default: the cores, at most ``OMP_NUM_THREADS``); the
         result does not depend on it.
     members : (depths, pixels), optional
-        :func:`member_depths` of ``scene`` and ``index``, when the caller has them already.
+        Per view, the Gaussians' depths and pixels (default: ``index.depths`` and
+        ``index.image_pixels``).
     color_distance : (N,) float, optional
         :func:`color_distances` against the same reference colours, when the caller has them
         already (the colour test then reads them instead of measuring again).
@@ -120,11 +106,10 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
         With ``color_distance``: per view, a colour distance. Where ``align_scale`` widens the
         view's margin, a Gaussian in front by more than ``margin`` but not by the widened
         margin also qualifies when its colour distance exceeds the view's entry (None: not in
-        that view; ``BAND_QUANTILE``).
+        that view; the refinement's: its colour noise's ``explained.BEYOND`` quantile).
     """
-    from .robust import view_depth_scales
     images = scene.images if images is None else images
-    depths, pixels = member_depths(scene, index) if members is None else members
+    depths, pixels = (index.depths, index.image_pixels) if members is None else members
 
     def view_front(view: int) -> np.ndarray | None:
         members = index.members[view]
@@ -176,207 +161,6 @@ def revealing_gaussians(scene: Scene, index: ViewIndex, reference_depths: list[n
     return (out, depth_out) if by_depth else out
 
 
-def widened_margin(margin: float, spread: float) -> float:
-    """The relative depth gap that counts as "in front" in a view whose depth ratio to the
-    reference spreads by ``spread`` (robust standard deviation of its log): beyond the view's
-    own depth noise (2.5 robust SD), not only beyond ``margin``."""
-    return max(margin, 1.0 - np.exp(-_SPREAD_FACTOR * spread))
-
-
-def box_distance(image: np.ndarray, lo: np.ndarray, hi: np.ndarray | None,
-                 pixels: np.ndarray) -> np.ndarray:
-    """L1 distance over RGB of ``image``'s colours at ``pixels`` to the box [lo, hi], (M,) float.
-
-    ``image``, ``lo``, ``hi``: (H*W, 3); ``hi`` None: the box is the single colour ``lo``
-    (plain L1 difference). NaN where the box is NaN (no reference colour there)."""
-    x = image[pixels]
-    low = lo[pixels]
-    with np.errstate(invalid="ignore"):
-        if hi is None:
-            return np.abs(x - low).sum(-1)
-        return (np.maximum(low - x, 0) + np.maximum(x - hi[pixels], 0)).sum(-1)
-
-
-def color_distances(scene: Scene, index: ViewIndex, reference_rgbs: list, images: list,
-                    pixels: list, *, reference_rgbs_hi: list | None = None) -> np.ndarray:
-    """Per Gaussian, the distance of its view's input colour to the reference colours at its
-    pixel, (N,) float32 (:func:`box_distance`): the colour half of :func:`revealing_gaussians`
-    on its own. NaN where the Gaussian has no pixel or the reference no colour.
-
-    Parameters
-    ----------
-    reference_rgbs : list of (H, W, 3) float
-        Per view, the reference colours (the lower bounds with ``reference_rgbs_hi``), as in
-        :func:`revealing_gaussians`.
-    images : list of (H, W, 3) float
-        The input colours.
-    pixels : list of (M_v,) int or None
-        Per view, :func:`member_pixels` (None for a view without Gaussians).
-    reference_rgbs_hi : list of (H, W, 3) float, optional
-        Upper bounds of the reference colours: the distance is then to that box.
-    """
-    out = np.full(len(scene), np.nan, dtype=np.float32)
-    for view, members in enumerate(index.members):
-        if members.size == 0:
-            continue
-        pix = pixels[view]
-        valid = pix >= 0
-        hi = None if reference_rgbs_hi is None else reference_rgbs_hi[view].reshape(-1, 3)
-        d = np.full(members.size, np.nan, dtype=np.float32)
-        d[valid] = box_distance(images[view].reshape(-1, 3),
-                                reference_rgbs[view].reshape(-1, 3), hi, pix[valid])
-        out[members] = d
-    return out
-
-
-def explained_candidates(candidates: list, raw: list, distances: np.ndarray,
-                         members: list, *, quantile: float,
-                         bounds: list | None = None) -> list:
-    """The candidates whose removal would take away only what the other views already show:
-    static content out of register (``EXPLAINED_QUANTILE``).
-
-    Each candidate judged gets ``scores["color"]``, the median distance over its Gaussians,
-    and ``scores["color_bound"]``, its view's quantile.
-
-    Parameters
-    ----------
-    candidates : list of Candidate
-        After expansion: each is judged on its ``expanded`` Gaussians [hat C_k], what accepting
-        it removes (its refined ``gaussians`` where it has no expansion).
-    raw : list of (M_k,) int
-        Every candidate's Gaussians before refinement (what the proposals cover).
-    distances : (N,) float
-        :func:`color_distances`.
-    members : list of (M_v,) int
-        Per view, the indices of its Gaussians (``ViewIndex.members``).
-    quantile : float
-        A candidate is explained when the median distance over its Gaussians that have a
-        reference colour is at most this quantile of the distances of its view's Gaussians
-        outside every proposal region (those with a reference colour). A candidate without
-        any such Gaussian, or in a view without any such static Gaussian, is not explained.
-    bounds : list of float or None, optional
-        Those quantiles, one per view (None: that view judges nothing), where they were
-        computed already (``Refinement.color_bounds(quantile)``; None: from ``raw`` and
-        ``distances`` here).
-
-    Returns
-    -------
-    list of Candidate
-        The explained ones, in order.
-    """
-    if bounds is None:
-        bounds = static_color_bounds(distances, static_mask(distances, raw), members)(quantile)
-    elif len(bounds) != len(members):
-        raise ValueError(f"explained_candidates: {len(bounds)} bounds for {len(members)} views")
-    out = []
-    for c in candidates:
-        d = distances[c.gaussians if c.expanded is None else c.expanded]
-        d = d[np.isfinite(d)]
-        bound = bounds[c.view]
-        if d.size == 0 or bound is None:
-            continue
-        median = float(np.median(d))
-        c.scores["color"], c.scores["color_bound"] = median, bound
-        if median <= bound:
-            out.append(c)
-    return out
-
-
-def static_mask(distances: np.ndarray, raw: list) -> np.ndarray:
-    """(N,) bool: the Gaussians outside every proposal region (``raw``, the candidates'
-    Gaussians before refinement) that have a colour distance."""
-    proposed = np.zeros(distances.shape, dtype=bool)
-    for g in raw:
-        proposed[g] = True
-    return ~proposed & np.isfinite(distances)
-
-
-def static_color_bounds(distances: np.ndarray, static: np.ndarray, members: list) -> Callable:
-    """Per view (``members``), :func:`static_color_bound` at a quantile: ``bounds(q)`` gives
-    the list, computed once per quantile (the colour rules of one refinement share them)."""
-    made: dict = {}
-
-    def bounds(quantile: float) -> list:
-        if quantile not in made:
-            made[quantile] = [static_color_bound(distances, static, m, quantile)
-                              for m in members]
-        return made[quantile]
-    return bounds
-
-
-def static_color_bound(distances: np.ndarray, static: np.ndarray, members: np.ndarray,
-                       quantile: float) -> float | None:
-    """The ``quantile`` of the colour distances (:func:`color_distances`, (N,)) of one view's
-    Gaussians (``members``) that are ``static`` ((N,) bool: outside every proposal region, with
-    a distance): how closely the other views reproduce that view's static content. None
-    where the view has no such Gaussian."""
-    ref = distances[members[static[members]]]
-    return float(np.quantile(ref, quantile)) if ref.size else None
-
-
-def explained_silhouettes(scene: Scene, index: ViewIndex, revealing: np.ndarray,
-                          distances: np.ndarray, pixels: list, static: np.ndarray, *,
-                          quantile: float) -> np.ndarray:
-    """The Gaussians of ``revealing`` on its silhouette whose colour the other views show,
-    (N,) bool (``SILHOUETTE_QUANTILE``).
-
-    A depth network blurs depth across an object's outline, so the Gaussians of the surface
-    pixels next to a distractor float between it and that surface (flying pixels): they stand
-    in front of the static reference, but show its colour. Per view, a Gaussian of
-    ``revealing`` is on the silhouette where its pixel has an 8-neighbour holding Gaussians of
-    the view but none of its ``revealing`` ones; it is explained where its colour distance is
-    at most the view's :func:`static_color_bound` at ``quantile``. Only pixel-aligned
-    Gaussians (``ViewIndex.pixels`` set: the backbone's own pixel) take part: the pixel a
-    Gaussian's centre projects to draws no outline. NaN distances (no reference colour)
-    explain nothing.
-
-    Parameters
-    ----------
-    revealing : (N,) bool
-        What the refinement keeps.
-    distances : (N,) float
-        :func:`color_distances` to the static reference.
-    pixels : list of (M_v,) int64
-        Per view, its Gaussians' pixels (:func:`member_pixels`; -1: none); None for a view
-        without Gaussians (as :func:`member_depths` gives them). Only those where
-        ``index.pixels`` is set (pixel-aligned) are read.
-    static : (N,) bool
-        :func:`static_mask`: the Gaussians outside every proposal region, with a distance.
-    quantile : float
-        Of the view's static colour distances.
-    """
-    out = np.zeros(revealing.shape, dtype=bool)
-    for view, members in enumerate(index.members):
-        pix = pixels[view]
-        if pix is None:         # a view without Gaussians
-            continue
-        # The outline is drawn on the pixel grid of a pixel-aligned prediction: a Gaussian
-        # placed by its centre (no ``pixel_id``) is never explained, nor counts as outside.
-        pix = np.where(index.pixels[view] >= 0, pix, -1)
-        sel = revealing[members] & (pix >= 0)
-        if not sel.any():
-            continue
-        bound = static_color_bound(distances, static, members, quantile)
-        if bound is None:
-            continue
-        cam = scene.cameras[view]
-        held = np.zeros(cam.height * cam.width, dtype=bool)
-        held[pix[sel]] = True
-        # Outside: pixels of the view's other Gaussians, none of them kept (a pixel without
-        # any Gaussian of the view is not outside).
-        outside = np.zeros(cam.height * cam.width, dtype=bool)
-        outside[pix[pix >= 0]] = True
-        outside &= ~held
-        edge = held.reshape(cam.height, cam.width) & dilate8(
-            outside.reshape(cam.height, cam.width))
-        on = sel.copy()
-        on[sel] = edge.ravel()[pix[sel]]
-        with np.errstate(invalid="ignore"):
-            on &= distances[members] <= bound
-        out[members[on]] = True
-    return out
-
-
 @dataclass(eq=False)
 class Refinement:
     """What refinement found.
@@ -387,48 +171,31 @@ class Refinement:
         The Gaussians in front of the reference: the only ones a candidate keeps (None with
         ``refine="none"``).
     front_pixels : list of (H, W) bool, or None
-        Per view, the pixels holding one of its ``revealing`` Gaussians (what verification
-        leaves out and the expansion grows into; None with ``refine="none"``).
-    color_distance : (N,) float32 or None
-        Per Gaussian, :func:`color_distances` to the last static reference (with
-        ``EXPLAINED_QUANTILE``, ``SILHOUETTE_QUANTILE`` or ``BAND_QUANTILE``; None
-        otherwise).
+        Per view, the pixels holding one of its ``revealing`` Gaussians (what the expansion
+        grows into; None with ``refine="none"``).
+    noise : ColorNoise or None
+        Each Gaussian's colour distance to the last static reference and each view's static
+        ones (:mod:`.explained`; with ``refine="static-depth"``, else None).
     expandable : (N,) bool or None
         Of ``revealing``, those the expansion may take beyond a candidate's own Gaussians:
-        those that qualify by depth alone, and with ``EXPAND_QUANTILE`` also those kept for
-        their colour alone whose colour distance exceeds their view's bound (with
-        ``refine="static-depth"`` and ``EXPAND_QUANTILE``; None otherwise: the expansion
-        takes every one of ``revealing``).
+        those in front by depth alone, and those kept for their colour alone whose colour is
+        beyond their view's noise (with ``refine="static-depth"``; None otherwise: the
+        expansion takes every one of ``revealing``).
     margins : list of float, or None
         Per view, the margin of the last pass's depth test, widened by the view's depth noise
         (:func:`revealing_gaussians`; None with ``refine="none"``):
         what :func:`~clearsplat.filter.verify.seen_by_verifiers` widens its margins to.
-    color_bounds : callable or None
-        ``color_bounds(q)``: per view, the ``q`` quantile of the colour distances of its
-        Gaussians outside every proposal region (:func:`static_color_bounds`; with
-        ``color_distance``, else None), what ``EXPLAINED_QUANTILE`` selects.
+    unreliable_pixels : list of (H, W) bool, or None
+        Per view, the pixels its verification leaves out: those of ``revealing`` and of the
+        silhouettes explained.
     """
 
     revealing: np.ndarray | None
     front_pixels: list | None = None
-    color_distance: np.ndarray | None = None
+    noise: ColorNoise | None = None
     expandable: np.ndarray | None = None
     margins: list | None = None
     unreliable_pixels: list | None = None
-    color_bounds: Callable | None = None
-
-
-def member_depths(scene: Scene, index: ViewIndex) -> tuple[list, list]:
-    """Per view, the camera depth (M,) float64 and the pixel (M,) int64 (:func:`member_pixels`)
-    of each of its Gaussians (None for a view without any): what every depth test of a round
-    reads. Computed in the calling thread: matrix products, left to BLAS as they are, whose
-    own threads must not depend on ours."""
-    # The z column copied out, so that the (M, 3) camera coordinates are not held with it.
-    depths = [scene.cameras[view].to_camera(scene.gaussians.means[members])[:, 2].copy()
-              if members.size else None for view, members in enumerate(index.members)]
-    pixels = [member_pixels(scene, index, view) if members.size else None
-              for view, members in enumerate(index.members)]
-    return depths, pixels
 
 
 def refine(state, renders, raw: list) -> Refinement:
@@ -447,33 +214,30 @@ def refine(state, renders, raw: list) -> Refinement:
     revealing, explained = found.revealing, found.explained
     front = unreliable = None
     if revealing is not None:
-        front = [pixels_of(state.scene, state.index, v, revealing)
-                 for v in range(state.num_views)]
+        front = [state.index.pixels_of(v, revealing) for v in range(state.num_views)]
         unreliable = front
         if explained is not None and explained.any():
             # The pixels of revealing | explained: those of either.
-            unreliable = [f | pixels_of(state.scene, state.index, v, explained)
+            unreliable = [f | state.index.pixels_of(v, explained)
                           for v, f in enumerate(front)]
-    return Refinement(revealing, front, found.distances, found.expandable,
-                      None if revealing is None else margins, unreliable, found.bounds)
+    return Refinement(revealing, front, found.noise, found.expandable,
+                      None if revealing is None else margins, unreliable)
 
 
 class _Found(NamedTuple):
     """What :func:`_revealing` finds (None: not computed under the config)."""
 
-    revealing: np.ndarray | None    # (N,) bool, in front of the reference
-    distances: np.ndarray | None = None     # Refinement.color_distance
+    revealing: np.ndarray | None            # (N,) bool, in front of the reference
+    noise: ColorNoise | None = None         # Refinement.noise
     expandable: np.ndarray | None = None    # Refinement.expandable
     explained: np.ndarray | None = None     # (N,) bool, silhouettes taken out of revealing
-    bounds: Callable | None = None          # Refinement.color_bounds
 
 
 def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found:
-    """The Gaussians in front of the reference of ``config.refine``, less the silhouettes it
-    explains (``SILHOUETTE_QUANTILE``; those as ``explained``); with any of the colour tests'
-    quantiles, each Gaussian's colour distance to the last static reference and the per-view
-    quantiles of the static ones; with ``EXPAND_QUANTILE``, those the expansion may take
-    (``Refinement.expandable``). The last pass's margins go to ``margins`` (per view)."""
+    """The Gaussians in front of the reference of ``config.refine``; with the static
+    reference, less the silhouettes whose colour is explained (those as ``explained``), with
+    the colour noise of the last pass and those the expansion may take. The last pass's
+    margins go to ``margins`` (per view)."""
     config = state.config
     excl = renders.reference     # R_i^-i, or the reveal reference in its place
     if config.refine == "depth":    # no colour test: in front by depth is all there is
@@ -487,70 +251,47 @@ def _revealing(state, renders, images: list, raw: list, margins: list) -> _Found
     # Each view's measured misregistration with the others: the colour test's radius.
     radii = thread_map(lambda i: misregistration(images[i], excl[i].rgb, excl[i].alpha),
                        range(state.num_views), workers=config.num_threads)
-    revealing = distances = in_front = None
-    members = member_depths(state.scene, state.index)     # the same in every pass
-    silhouettes, band = SILHOUETTE_QUANTILE, BAND_QUANTILE
-    explain = ((EXPLAINED_QUANTILE is not None and config.verify)
-               or silhouettes is not None or band is not None or EXPAND_QUANTILE is not None)
-    bands = static = bounds = None
+    members = state.index.depths, state.index.image_pixels     # the same in every pass
+    noise = None
     for k in range(PASSES):
-        last = k == PASSES - 1
-        # Each later pass builds the static reference without only the
-        # proposed Gaussians that the previous pass kept, so that static content proposed
-        # by some view (around another view's distractor) stays in the reference.
-        # The reveal reference replaces the static one wherever it applies: only the other
-        # pixels' tiles are composited again.
-        needed = (None if renders.reveal is None
-                  else [~valid for valid in renders.reveal_valid])
-        depths, rgbs = static_reference(state, renders.excl, proposed, needed=needed)
-        if renders.reveal is not None:
-            _overlay_reveal(depths, rgbs, renders)
-        # The colours within each view's misregistration; the depths at the Gaussian's own
-        # pixel: the nearest surface within a few pixels of a small object on a sloping floor
-        # is the floor in front of it (docs/method.md, "The depth test at the Gaussian's own
-        # pixel").
-        reference = tolerant_reference(depths, rgbs, radii, depth_radius=0)
-        if explain and last:   # measured once, read by both tests
-            _, lo, hi = reference
-            distances = color_distances(state.scene, state.index, lo, images, members[1],
-                                        reference_rgbs_hi=hi)
-            static = static_mask(distances, raw)    # what each view's bounds read
-            bounds = static_color_bounds(distances, static, state.index.members)
-            if band is not None:
-                bands = bounds(band)
-        revealing, in_front = _in_front(state, reference, images, members, distances,
-                                        by_depth=last and EXPAND_QUANTILE is not None,
-                                        margins=margins, band_bounds=bands)
+        # Each later pass builds the static reference without only the proposed Gaussians
+        # that the previous pass kept, so that static content proposed by some view (around
+        # another view's distractor) stays in the reference.
+        reference = _static_tolerant(state, renders, proposed, radii)
+        if k == PASSES - 1:     # the colour noise, measured once, read by every colour test
+            noise = ColorNoise(color_distances(state.scene, state.index, reference[1], images,
+                                               members[1], reference_rgbs_hi=reference[2]),
+                               raw, state.index.members)
+        revealing, in_front = _in_front(state, reference, images, members, noise,
+                                        margins=margins)
         proposed &= revealing
         # This pass's references are not read again: dropped before the next pass makes its
         # own, so that two passes' (four images per view) are never held at once.
-        depths = rgbs = reference = None
-    expandable = in_front       # by depth; with ``EXPAND_QUANTILE`` far-off colours too
-    if expandable is not None:
-        expandable = expandable | beyond_static_colors(distances, revealing,
-                                                       state.index.members,
-                                                       bounds(EXPAND_QUANTILE))
-    explained = None
-    if silhouettes is not None:     # flying pixels at a distractor's outline stay
-        explained = explained_silhouettes(state.scene, state.index, revealing, distances,
-                                          members[1], static, quantile=silhouettes)
-        revealing &= ~explained
-        if expandable is not None:
-            expandable &= ~explained
-    return _Found(revealing, distances, expandable, explained, bounds)
+        reference = None
+    # Beyond the candidates' own Gaussians the expansion takes those in front by depth, and
+    # those kept for their colour alone only where it is beyond the view's noise.
+    expandable = in_front | noise.beyond(revealing)
+    # Flying pixels at a distractor's outline, in the colour of the surface behind, stay.
+    explained = _explained.explained_silhouettes(state.scene, state.index, revealing, noise,
+                                                 members[1])
+    revealing &= ~explained
+    expandable &= ~explained
+    return _Found(revealing, noise, expandable, explained)
 
 
-def beyond_static_colors(distances: np.ndarray, selected: np.ndarray, members: list,
-                         bounds: list) -> np.ndarray:
-    """(N,) bool: the Gaussians of ``selected`` whose colour distance (:func:`color_distances`)
-    exceeds their view's entry of ``bounds`` (per view, as :func:`static_color_bounds` gives
-    them; None: none of that view)."""
-    out = np.zeros(distances.shape, dtype=bool)
-    for m, bound in zip(members, bounds):
-        if bound is not None:
-            with np.errstate(invalid="ignore"):     # NaN distances: not beyond
-                out[m] = selected[m] & (distances[m] > bound)
-    return out
+def _static_tolerant(state, renders, proposed: np.ndarray, radii: list) -> tuple:
+    """:func:`static_reference` without ``proposed``, the reveal reference in its place
+    wherever it applies (only the other pixels' tiles are composited again), made tolerant
+    to each view's misregistration ``radii``: ``(depths, rgb_lo, rgb_hi)``.
+
+    The colours within each view's misregistration; the depths at the Gaussian's own pixel:
+    the nearest surface within a few pixels of a small object on a sloping floor is the floor
+    in front of it (docs/method.md, "The depth test at the Gaussian's own pixel")."""
+    needed = None if renders.reveal is None else [~valid for valid in renders.reveal_valid]
+    depths, rgbs = static_reference(state, renders.excl, proposed, needed=needed)
+    if renders.reveal is not None:
+        _overlay_reveal(depths, rgbs, renders)
+    return tolerant_reference(depths, rgbs, radii, depth_radius=0)
 
 
 def static_reference(state, excl: list, proposed: np.ndarray, *,
@@ -608,77 +349,15 @@ def _overlay_reveal(depths: list, rgbs: list, renders) -> None:
 
 
 def _in_front(state, reference: tuple, images: list, members: tuple,
-              distances: np.ndarray | None = None, by_depth: bool = False,
-              margins: list | None = None, band_bounds: list | None = None) -> tuple:
+              noise: ColorNoise | None, margins: list) -> tuple:
     """:func:`revealing_gaussians` against the static reference ``(depths, rgb_lo, rgb_hi)``
-    (:func:`~clearsplat.filter.robust.tolerant_reference`), and with ``by_depth`` those it keeps by depth alone (else None)."""
-    config = state.config
+    (:func:`~clearsplat.filter.explained.tolerant_reference`): ``(qualify, by_depth)``, both
+    (N,) bool. With ``noise`` (the last pass) the colour test reads its distances, and within
+    a view's depth noise a colour beyond the view's colour noise qualifies."""
     depths, rgb_lo, rgb_hi = reference
-    out = revealing_gaussians(state.scene, state.index, depths, margin=MARGIN,
-                              reference_rgbs=rgb_lo, color_threshold=COLOR_THRESHOLD,
-                              images=images, align_scale=True,
-                              reference_rgbs_hi=rgb_hi,
-                              workers=config.num_threads, members=members,
-                              color_distance=distances, by_depth=by_depth,
-                              margins=margins, band_bounds=band_bounds)
-    return out if by_depth else (out, None)
-
-
-def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
-    """Flat pixel of each Gaussian of ``view`` in that view's image, (M,) int64, -1 if none.
-
-    ``pixel_id`` where the model is pixel-aligned, otherwise the pixel its centre projects to.
-    """
-    members = index.members[view]
-    pix = index.pixels[view].astype(np.int64)
-    loose = pix < 0
-    if loose.any():
-        pix[loose] = _centre_pixels(scene.cameras[view], scene.gaussians.means[members[loose]])
-    return pix
-
-
-def _centre_pixels(cam, means: np.ndarray) -> np.ndarray:
-    """Flat pixel of ``cam``'s image that each centre ((M, 3)) projects to, (M,) int64; -1
-    behind the camera or outside the image."""
-    return centre_pixels(cam, means)[0]
-
-
-def centre_pixels(cam, means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(pixels, depths)``: the flat pixel of ``cam``'s image that each centre ((M, 3))
-    projects to, (M,) int64, -1 behind the camera or outside the image; and its camera depth,
-    (M,) float."""
-    uv, z = cam.project(means)
-    with np.errstate(invalid="ignore"):
-        col = np.floor(np.nan_to_num(uv[:, 0], nan=-1.0, posinf=-1.0, neginf=-1.0))
-        row = np.floor(np.nan_to_num(uv[:, 1], nan=-1.0, posinf=-1.0, neginf=-1.0))
-    ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
-    return np.where(ok, row * cam.width + col, -1).astype(np.int64), z
-
-
-def removed_pixels(scene: Scene, removed: np.ndarray) -> list[np.ndarray]:
-    """Per input view, (H, W) bool: the pixels of its own Gaussians among ``removed`` ((N,)
-    bool), where its input image shows what was removed (``pixel_id``, or the pixel a
-    Gaussian's centre projects to where the model is not pixel-aligned)."""
-    where = np.flatnonzero(removed)
-    views, pix = scene.view_id[where], scene.pixel_id[where].astype(np.int64)
-    out = []
-    for v, cam in enumerate(scene.cameras):
-        mask = np.zeros(cam.height * cam.width, dtype=bool)
-        sel = views == v
-        p = pix[sel]
-        loose = p < 0
-        if loose.any():
-            p[loose] = _centre_pixels(cam, scene.gaussians.means[where[sel][loose]])
-        mask[p[p >= 0]] = True
-        out.append(mask.reshape(cam.height, cam.width))
-    return out
-
-
-def pixels_of(scene: Scene, index: ViewIndex, view: int, selected: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the pixels of ``view`` holding one of its ``selected`` ((N,) bool) Gaussians."""
-    cam = scene.cameras[view]
-    out = np.zeros(cam.height * cam.width, dtype=bool)
-    pix = member_pixels(scene, index, view)
-    pix = pix[selected[index.members[view]] & (pix >= 0)]
-    out[pix] = True
-    return out.reshape(cam.height, cam.width)
+    return revealing_gaussians(
+        state.scene, state.index, depths, margin=MARGIN, reference_rgbs=rgb_lo,
+        color_threshold=COLOR_THRESHOLD, images=images, align_scale=True,
+        reference_rgbs_hi=rgb_hi, workers=state.config.num_threads, members=members,
+        color_distance=None if noise is None else noise.distances, by_depth=True,
+        margins=margins, band_bounds=None if noise is None else noise.bounds(_explained.BEYOND))

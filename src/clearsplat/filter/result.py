@@ -134,6 +134,13 @@ class FilterResult:
     warnings: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
 
+    @classmethod
+    def unchanged(cls, n: int, config: FilterConfig, message: str,
+                  timings: dict) -> FilterResult:
+        """Every one of ``n`` Gaussians kept, nothing proposed, and ``message`` (why) as the
+        result's warning."""
+        return cls(np.ones(n, bool), [], [], timings, config, [message])
+
     def __repr__(self) -> str:
         accepted = sum(c.accepted for c in self.candidates)
         warned = f"; {len(self.warnings)} warning(s)" if self.warnings else ""

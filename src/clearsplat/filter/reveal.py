@@ -31,11 +31,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..render import RenderResult
-from .association import view_members
 from .neighbours import covisibility
 
-__all__ = ["MAX_ANGLE", "MIN_ALPHA", "MIN_VIEWS", "QUANTILE", "VIEWS", "parallax_angles", "quantile_layers", "reveal_neighbours",
-           "reveal_plan", "reveal_reference", "typical_depths"]
+__all__ = ["MAX_ANGLE", "MIN_ALPHA", "MIN_VIEWS", "QUANTILE", "VIEWS", "parallax_angles",
+           "quantile_layers", "reveal_neighbours", "reveal_plan", "reveal_reference",
+           "typical_depths"]
 
 #: A neighbour covers a pixel where its own render's accumulated opacity exceeds this.
 MIN_ALPHA = 0.5
@@ -65,16 +65,17 @@ def reveal_neighbours(shared: np.ndarray, view: int, *, count: int,
 
 
 def reveal_plan(scene, *, count: int, max_angle: float | None, allowed: np.ndarray,
-                members: list | None = None) -> list[list[int]]:
+                depths: list) -> list[list[int]]:
     """Per view i, the neighbours its reveal reference renders: the ``count`` views sharing
     the most of its field of view (:func:`~clearsplat.filter.neighbours.covisibility`, both
     ways), among those ``allowed[i]`` ((V, V) bool) allows and, unless ``max_angle`` is None,
-    within ``max_angle`` degrees of parallax (:func:`parallax_angles` at
-    :func:`typical_depths`; ``members`` as that takes them)."""
+    within ``max_angle`` degrees of parallax (:func:`parallax_angles` at the
+    :func:`typical_depths` of ``depths``: per view, its Gaussians' camera depths,
+    ``ViewIndex.depths``)."""
     c = covisibility(scene)
     shared = c + c.T
     if max_angle is not None:
-        allowed = allowed & (parallax_angles(scene.cameras, typical_depths(scene, members))
+        allowed = allowed & (parallax_angles(scene.cameras, typical_depths(depths))
                              <= max_angle)
     return [reveal_neighbours(shared, i, count=count, allowed=allowed[i])
             for i in range(scene.num_views)]
@@ -102,16 +103,13 @@ def parallax_angles(cameras: list, depths: list) -> np.ndarray:
     return out
 
 
-def typical_depths(scene, members: list | None = None) -> list[float]:
+def typical_depths(depths: list) -> list[float]:
     """Per view, the median camera depth of its own Gaussians in front of it (0 where it has
-    none): the depth :func:`parallax_angles` measures at. ``members``: per view, the indices
-    of its Gaussians (default: from ``scene.view_id``)."""
-    if members is None:
-        members = view_members(scene)
+    none): the depth :func:`parallax_angles` measures at. ``depths``: per view, its Gaussians'
+    camera depths ((M_v,) float, or None for a view without any: ``ViewIndex.depths``)."""
     out = []
-    for cam, ids in zip(scene.cameras, members):
-        z = cam.to_camera(scene.gaussians.means[ids])[:, 2]
-        z = z[z > 0]
+    for z in depths:
+        z = np.empty(0) if z is None else z[z > 0]
         out.append(float(np.median(z)) if z.size else 0.0)
     return out
 

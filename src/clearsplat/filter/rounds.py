@@ -19,7 +19,8 @@ import numpy as np
 from ..scene import Gaussians, Scene
 from .result import FilterResult
 
-__all__ = ["Carry", "KeptGaussians", "held_bytes", "in_round", "kept_scene", "merge_round"]
+__all__ = ["Carry", "KeptGaussians", "held_bytes", "in_round", "kept_scene", "merge_round",
+           "removed_pixels"]
 
 
 @dataclass
@@ -143,3 +144,22 @@ def merge_round(result: FilterResult, later: FilterResult, kept: np.ndarray,
         peak = k.endswith("_bytes")
         result.stats[k] = max(result.stats.get(k, 0), v) if peak else result.stats.get(k, 0) + v
     result.warnings.extend(w for w in later.warnings if w not in result.warnings)
+
+
+def removed_pixels(scene: Scene, removed: np.ndarray) -> list[np.ndarray]:
+    """Per input view, (H, W) bool: the pixels of its own Gaussians among ``removed`` ((N,)
+    bool), where its input image shows what was removed (``pixel_id``, or the pixel a
+    Gaussian's centre projects to where the model is not pixel-aligned)."""
+    where = np.flatnonzero(removed)
+    views, pix = scene.view_id[where], scene.pixel_id[where].astype(np.int64)
+    out = []
+    for v, cam in enumerate(scene.cameras):
+        mask = np.zeros(cam.height * cam.width, dtype=bool)
+        sel = views == v
+        p = pix[sel]
+        loose = p < 0
+        if loose.any():
+            p[loose] = cam.flat_pixels(scene.gaussians.means[where[sel][loose]])[0]
+        mask[p[p >= 0]] = True
+        out.append(mask.reshape(cam.height, cam.width))
+    return out

@@ -79,7 +79,7 @@ class RoundState:
         gap = np.abs(np.arange(v)[:, None] - np.arange(v)[None, :])
         left_out = gap <= config.leave_out
         return cls(scene, config, backend, index,
-                   own=OwnMasks(index, left_out, len(scene)),
+                   own=OwnMasks(index, left_out),
                    tau1=extractor.tau1 if config.tau1 is None else config.tau1,
                    tau2=extractor.tau2 if config.tau2 is None else config.tau2,
                    report=report, left_out=left_out)
@@ -114,8 +114,8 @@ class OwnMasks:
     of 7.3 M Gaussians.
     """
 
-    def __init__(self, index, left_out: np.ndarray, n: int):
-        self._index, self._left_out, self._n = index, left_out, n
+    def __init__(self, index, left_out: np.ndarray):
+        self._index, self._left_out, self._n = index, left_out, index.n
         self._last = (None, None)
 
     def __len__(self) -> int:

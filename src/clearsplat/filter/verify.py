@@ -34,7 +34,6 @@ import numpy as np
 
 from ..scene import Scene
 from .association import ViewIndex
-from .refine import centre_pixels, member_pixels
 
 __all__ = ["Partial", "change_weighted_terms", "Verifier", "verification_views", "top_views",
            "make_verifier", "exclusion_masks", "range_masks", "passes", "median_relative_score",
@@ -488,10 +487,8 @@ def own_depth_map(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:
     it has none."""
     cam = scene.cameras[view]
     out = np.full(cam.height * cam.width, np.inf)
-    members = index.members[view]
-    if members.size:
-        z = cam.to_camera(scene.gaussians.means[members])[:, 2]
-        pix = member_pixels(scene, index, view)
+    if index.members[view].size:
+        z, pix = index.depths[view], index.image_pixels[view]
         ok = (pix >= 0) & (z > 0)
         np.minimum.at(out, pix[ok], z[ok])
     return out
@@ -528,7 +525,7 @@ def seen_by_verifiers(state, candidates: list, margin: float,
         for j in c.verify_views:
             if j not in own:
                 own[j] = own_depth_map(scene, state.index, j)
-            pix, z = centre_pixels(scene.cameras[j], pts)
+            pix, z = scene.cameras[j].flat_pixels(pts)
             inside = pix >= 0
             limit = 1.0 + np.maximum(theirs[inside], per_view[j])
             seen[inside] |= z[inside] <= limit * own[j][pix[inside]]
