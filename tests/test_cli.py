@@ -359,7 +359,6 @@ CASES = {
                                  "scale_2", "outside the float32 range"),
     "zero quaternion": (lambda r: [edit_ply(r, set_value(f"rot_{c}", 11, 0.0))
                                    for c in range(4)], PLY, "rot_0..3", "zero quaternion"),
-    "view_id missing": (lambda r: edit_ply(r, drop("view_id")), PLY, "view_id", "missing"),
     "view_id out of range": (lambda r: edit_ply(r, set_value("view_id", 5, 3)), PLY, "view_id",
                              "out of range"),
     "view_id negative": (lambda r: edit_ply(r, set_value("view_id", 5, -1)), PLY, "view_id",
@@ -419,6 +418,32 @@ def test_bad_input(bundle, tmp_path, capsys, case):
     named = line[len("clearsplat: error: "):].split(f": {field}: ")[0]
     assert named.endswith(where), f"{line!r} does not name {where}"
     assert not (tmp_path / "out").exists() and leftovers(tmp_path) == []
+
+
+def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, capsys):
+    # A scene from any trainer: no view_id (nor pixel_id). The filter recovers each
+    # Gaussian's view from the input images, says so in one line, and indexes the user's file.
+    edit_ply(bundle, drop("view_id"))
+    n = read_columns(bundle / "gaussians.ply")["x"][1].size
+    code, stdout, err = _filter(bundle, tmp_path / "out", capsys)
+    assert code == 0, err
+    line = next(x for x in stdout.splitlines() if x.startswith("associated "))
+    assert line.startswith(f"associated {n:,} Gaussians from images: ") and \
+        line.endswith("ambiguous (the PLY has no view_id)")
+    got, ambiguous = (int(x.replace(",", "")) for x in
+                      line.split(": ")[1].split(" (")[0].replace(" got a view", "")
+                      .replace(" ambiguous", "").split(", "))
+    assert got + ambiguous == n and got > 0
+    assert np.load(tmp_path / "out" / "removed.npy").shape == (n,)
+
+
+def test_a_ply_without_view_id_and_images_is_refused(bundle, tmp_path, capsys):
+    edit_ply(bundle, drop("view_id"))
+    (bundle / "images" / "000.png").unlink()
+    code, _, err = _filter(bundle, tmp_path / "out", capsys)
+    assert code == 2
+    assert_one_error(err, "000.png", "image file not found")
+    assert not (tmp_path / "out").exists()
 
 
 # ------------------------------------------------------------------------------------------------

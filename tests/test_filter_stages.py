@@ -9,7 +9,7 @@ from clearsplat.filter.masks import dilate
 from clearsplat.filter.proposal import (cell_index_map, connected_regions, patch_means,
                                         propose_view, proposal_ranges, support_condition)
 from clearsplat.filter.verify import Partial, change_weighted_terms
-from clearsplat import ClearsplatError
+from clearsplat import ClearsplatError, Scene
 
 
 def test_cell_index_map_covers_every_cell_evenly():
@@ -227,3 +227,32 @@ def test_view_index_gathers_the_gaussians_of_a_region():
         region = rng.random((8, 12)) < 0.3
         expected = np.flatnonzero((view == v) & region.ravel()[pixel])
         assert np.array_equal(region_gaussians(scene, v, region, index=index), expected)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_region_map_equals_region_gaussians_for_gaussians_without_pixel(seed):
+    """A round's RegionMap reads each view's whole-image contributions once; every region maps
+    to exactly what region_gaussians composites for it alone, aligned and loose Gaussians mixed."""
+    from types import SimpleNamespace
+
+    from clearsplat.filter.association import RegionMap, ViewIndex, region_gaussians
+    from clearsplat.render import prepare
+    from clearsplat.synth import make_world
+    from clearsplat.synth.realism import realistic_reconstruction
+    world = make_world("object", num_views=3, seed=seed, height=48, width=80)
+    scene, _ = realistic_reconstruction(world, "coarse", seed=seed)
+    rng = np.random.default_rng(seed)
+    pixel_id = scene.pixel_id.copy()
+    pixel_id[rng.random(len(scene)) < 0.3] = -1      # some per-pixel ones lose their pixel too
+    scene = Scene(scene.gaussians, scene.view_id, pixel_id, scene.cameras, scene.images,
+                  scene.render_settings)
+    index = ViewIndex(scene)
+    views = [prepare(scene, cam) for cam in scene.cameras]
+    region_map = RegionMap(SimpleNamespace(scene=scene, index=index, views=views))
+    assert any(region_map.loose)
+    for v in range(scene.num_views):
+        for share in (0.0, 0.05, 0.4):
+            region = rng.random((48, 80)) < share
+            expected = region_gaussians(scene, v, region, index=index, prepared=views[v])
+            got = region_map(v, region)
+            assert got.dtype == np.int64 and np.array_equal(got, expected)

@@ -234,9 +234,9 @@ def test_anysplat_half_pixel_and_voxels(tmp_path, cams):
     pred = dict(pred, rotations=rot)         # in the frame of the predicted poses (the cameras)
     path = tmp_path / "a.ply"
     up.anysplat_inference_export(path, pred)
-    with pytest.raises(ClearsplatError, match="voxel_inverse") as e:
-        import_export(path, "anysplat", cams)
-    assert "\n" not in str(e.value)
+    with pytest.raises(ClearsplatError, match="images are needed") as e:
+        import_export(path, "anysplat", cams)        # voxels (the default): from the images
+    assert "\n" not in str(e.value) and e.value.field == "images"
     scene, report = import_export(path, "anysplat", cams, voxelized=False)
     _check(scene, report, t, _model_order(t))
     assert scene.cameras[0].cx == cams[0].cx + 0.5

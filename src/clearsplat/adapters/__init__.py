@@ -13,11 +13,16 @@ NumPy), its cameras and input images, and returns a validated scene with the vie
   the voxel of every pixel from the encoder's outputs.
 - :func:`from_pixel_aligned`: any other per-pixel model.
 - :func:`covariance_to_scales_quats`, :func:`rotate_sh`: the conversions they use.
+- :func:`associate_ordered`, :func:`associate_fused`: the association recovered from geometry
+  and the input images where an export's vertex order has lost it
+  (:mod:`clearsplat.adapters.associate`).
 """
 
 from ._common import (NEGATIVE_TOLERANCE, SCALE_FLOOR_ABS, SCALE_FLOOR_RATIO,
                       covariance_to_scales_quats, scales_quats_to_covariance)
 from .anysplat import anysplat_voxel_inverse, from_anysplat
+from .associate import (Association, Similarity, associate_fused, associate_ordered,
+                        normalised_frame)
 from .generic import from_pixel_aligned
 from .noposplat import from_noposplat, from_yonosplat
 from .pixelsplat import from_depthsplat, from_mvsplat, from_pixelsplat, from_resplat
@@ -28,5 +33,6 @@ __all__ = [
     "from_yonosplat", "from_anysplat", "anysplat_voxel_inverse", "from_pixel_aligned",
     "covariance_to_scales_quats",
     "scales_quats_to_covariance", "rotate_sh", "sh_basis", "SCALE_FLOOR_RATIO",
-    "SCALE_FLOOR_ABS", "NEGATIVE_TOLERANCE",
+    "SCALE_FLOOR_ABS", "NEGATIVE_TOLERANCE", "Association", "Similarity", "associate_ordered",
+    "associate_fused", "normalised_frame",
 ]

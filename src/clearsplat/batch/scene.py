@@ -116,11 +116,15 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
 
     t0 = time.perf_counter()
     check_output_folder(out, inputs=[scene], force=force)
-    loaded = load_scene(scene)
-    if log is not None:
-        log(f"{len(loaded):,} Gaussians, {loaded.num_views} views")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        # A PLY without view_id: each Gaussian's view recovered from the images (one line).
+        loaded = load_scene(scene, associate=True)
+        if log is not None:
+            log(f"{len(loaded):,} Gaussians, {loaded.num_views} views")
+            for w in caught:        # told once, here, before the filter runs
+                log(str(w.message))
+            del caught[:]
         try:
             result = filter_distractors(loaded, config=config, progress=progress)
         except ClearsplatError as e:

@@ -149,12 +149,35 @@ class RegionMap:
         self.scene, self.index, self.views = state.scene, state.index, state.views
         self.min_weight = MIN_WEIGHT
         self.loose = [bool((p < 0).any()) for p in self.index.pixels]
+        self._by_pixel: dict = {}
 
     def __call__(self, view: int, pixels: np.ndarray) -> np.ndarray:
         """(M,) int64: the Gaussians of ``view`` that the (H, W) bool ``pixels`` map to."""
-        return region_gaussians(self.scene, view, pixels, index=self.index,
-                                min_weight=self.min_weight,
-                                prepared=self.views[view] if self.loose[view] else None)
+        chosen = np.sort(self.index.at_pixels(view, np.flatnonzero(pixels.ravel())))
+        if not self.loose[view] or not pixels.any():
+            return chosen
+        gaussians, starts = self._loose_by_pixel(view)
+        flat = np.flatnonzero(pixels.ravel())
+        lo, hi = starts[flat], starts[flat + 1]
+        counts = hi - lo
+        offsets = np.repeat(lo - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+        return np.union1d(chosen, gaussians[offsets]).astype(np.int64)
+
+    def _loose_by_pixel(self, view: int) -> tuple:
+        """Per pixel of ``view`` (CSR: Gaussians, starts), its Gaussians without ``pixel_id``
+        whose blending weight reaches ``min_weight`` there, compositing only the view's own
+        Gaussians (:func:`region_gaussians`): made once per view, from one pass over the whole
+        image, instead of once per region."""
+        if view not in self._by_pixel:
+            h, w = self.index.shapes[view]
+            own = self.index.mask(view, self.index.n)
+            contrib = self.views[view].contributions(np.ones((h, w), dtype=bool), keep=own)
+            g = contrib.gaussian
+            sel = (contrib.weight >= self.min_weight) & (self.scene.pixel_id[g] < 0)
+            pixel = contrib.pixel[sel]      # ordered by pixel
+            starts = np.searchsorted(pixel, np.arange(h * w + 1)).astype(np.int64)
+            self._by_pixel[view] = (g[sel], starts)
+        return self._by_pixel[view]
 
 
 def member_pixels(scene: Scene, index: ViewIndex, view: int) -> np.ndarray:

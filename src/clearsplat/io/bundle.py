@@ -493,7 +493,7 @@ def save_bundle_cameras(folder, cameras, image_paths, *, located_at=None,
 # ------------------------------------------------------------------------------------------------
 # scenes
 # ------------------------------------------------------------------------------------------------
-def load_scene(path, *, require_images: bool = True) -> Scene:
+def load_scene(path, *, require_images: bool = True, associate: bool = False) -> Scene:
     """Load a scene bundle.
 
     Parameters
@@ -505,6 +505,11 @@ def load_scene(path, *, require_images: bool = True) -> Scene:
         The filter needs the input images, so a missing image is an error. With False, a
         bundle whose images are missing (any of them) loads with ``Scene.images = None``;
         images that are present must still be readable and of the camera's size.
+    associate : bool, default False
+        A PLY without ``view_id`` (a scene from any trainer or model) is refused, unless this
+        is set: then each Gaussian's view is recovered from how it reproduces the input
+        images (:func:`clearsplat.adapters.associate.associate_fused`, ``pixel_id`` -1), and a
+        ``UserWarning`` says so in one line (how many got a view, how many are ambiguous).
 
     Returns
     -------
@@ -528,10 +533,12 @@ def load_scene(path, *, require_images: bool = True) -> Scene:
     if not ply.is_file():
         raise ClearsplatError("Gaussians file not found", path=ply, field="gaussians")
     gaussians, view_id, pixel_id = read_ply(ply)
-    if view_id is None:
+    if view_id is None and not associate:
         raise ClearsplatError("property 'view_id' is missing: every Gaussian needs the index "
-                              "of the input view that predicted it", path=ply, field="view_id")
-    _check_association(view_id, pixel_id, cameras, ply)
+                              "of the input view that predicted it (`clearsplat filter` "
+                              "recovers it from the images)", path=ply, field="view_id")
+    if view_id is not None:
+        _check_association(view_id, pixel_id, cameras, ply)
 
     key = "image" if camera_file.name == CAMERAS_FILE else "file_path"
     missing = [i for i, p in enumerate(image_paths) if p is None or not _is_file(p)]
@@ -553,9 +560,29 @@ def load_scene(path, *, require_images: bool = True) -> Scene:
                 field = f"frames[{i}].{e.field}" if e.field in ("width", "height") else e.field
                 raise ClearsplatError(e.reason, path=e.path, field=field) from None
     settings = load_render_settings(camera_file)
+    if view_id is None:
+        view_id, pixel_id = _associated(gaussians, cameras, images, settings, ply)
     scene = Scene(gaussians, view_id, pixel_id, cameras, images, settings)
     scene.validate(path=bundle)
     return scene
+
+
+def _associated(gaussians, cameras, images, settings, ply) -> tuple:
+    """``(view_id, pixel_id)`` of Gaussians without an association, from how they reproduce
+    the input images; the one-line summary as a ``UserWarning``."""
+    import warnings
+
+    from ..adapters.associate import associate_fused
+    if images is None:
+        raise ClearsplatError("property 'view_id' is missing and the images are too: the "
+                              "association is recovered from the input images", path=ply,
+                              field="view_id")
+    try:
+        found = associate_fused(gaussians, cameras, images, settings=settings)
+    except ClearsplatError as e:
+        raise ClearsplatError(e.reason, path=ply, field=e.field) from None
+    warnings.warn(found.summary() + " (the PLY has no view_id)", stacklevel=3)
+    return found.view_id, found.pixel_id
 
 
 def _check_association(view_id, pixel_id, cameras, ply) -> None:

@@ -4,7 +4,8 @@ A model's ``export_ply`` writes no ``view_id``, but the order of its vertices fo
 model's per-pixel layout, so the association is implied by the vertex order, the image grid
 and the export's options (border trim, Gaussians per pixel, view order, cuts). This module
 recomputes it, undoes the export's change of frame, turns camera-frame rotations to world, and
-returns a :class:`clearsplat.Scene` the filter takes.
+returns a :class:`clearsplat.Scene` the filter takes. The scene keeps the file's vertex order,
+so a mask over it (the filter's ``removed.npy``) indexes the file.
 
 What each export does (read from the upstream code, listed in ``docs/backbones.md``) is held
 in :data:`EXPORT_FORMATS`:
@@ -18,9 +19,29 @@ pixelsplat v h w s 0    raw     --         viewer              camera
 noposplat  v h w s 0    raw     --         first-camera        frame
 yonosplat  h w s v 8    raw     <= 0.01    first-camera        camera
 resplat    v h w s 0    logit   --         middle-rotation     camera
-anysplat   v h w s 0    raw     (voxels)   world (predicted)   frame
+anysplat   voxels  0    raw     --         world (predicted)   frame
 3dgs       v h w s 0    logit   --         world               frame
 ========== ======= ==== ======= ========== =================== ================
+
+AnySplat fuses pixels into voxels by default (``voxelize: true``): each voxel's view is
+recovered from the images (``voxelized=False``, ``--no-voxels``: per-pixel ``v h w s``).
+
+Other exports no longer give each vertex's view and pixel by their order
+(:data:`MODEL_FORMATS`); the association is recovered from the geometry or the images
+(:mod:`clearsplat.adapters.associate`):
+
+=========== ========================================= ======= =========================
+format      order of the vertices                     opacity frame
+=========== ========================================= ======= =========================
+da3         v h w, border trim and per-view depth cut logit   normalised (poses given),
+                                                               or the cameras'; fitted
+worldmirror voxel key (v1; 2.0 when voxels merge),    raw     predicted cameras'
+            v h w after masks (2.0, no merge), or
+            a seeded subsample (2.0, > 5M)
+longlrm     v h w minus opacity <= 0.001, or ranked   logit   normalised (from cameras)
+            by opacity plus random picks (pruned)
+volsplat    refused: constant 0.01 scales, padded/truncated to V H W
+=========== ========================================= ======= =========================
 
 Orders: ``"vhws"`` is the model's own flattening (view slowest); ``"hwsv"`` the
 ``"() (v h w spp) ... -> h w spp v ..."`` rearrangement of the ``save_gaussian_ply``-style
@@ -42,12 +63,22 @@ centre of input camera ``v``, camera-to-world):
   AnySplat's Gaussians are in the frame of its predicted poses (``pred_context_pose``, whose
   first camera is the identity only as far as the camera head learned it): ``world``, to be
   imported with those poses as the cameras.
+- Depth Anything 3: with given poses, its frame has camera 0 the identity and the camera
+  centres divided by their median distance from it, then rescaled by the model (an Umeyama
+  scale): undone from the cameras, then fitted to the pixel rays together with the
+  association; without, the frame of its own predicted cameras (fitted the same way).
+- Long-LRM: its input normalisation (mean camera axes and centre, largest coordinate 1),
+  computed from the cameras (:func:`longlrm_frame`).
+- WorldMirror: the frame of its predicted cameras (``camera_params.json``, whose
+  ``extrinsics`` are camera-to-world: :func:`read_camera_params`).
 
 Rotations: ``world``/``frame`` rotations are in the file's frame and turn with ``A``;
 ``camera`` rotations are each vertex's own camera frame (the encoders' un-rotated
 ``rotations``), turned only by the export's frame rotation, so the world rotation is
 ``C_v @ F^T @ R_file`` with ``F`` the rotation the export applied (``A^T`` for ``viewer`` and
-``middle-rotation``, none for ``first-camera``).
+``middle-rotation``, none for ``first-camera``). Depth Anything 3 writes ``mat_to_quat``'s
+``x y z w`` into ``rot_0..3`` and renders that vector as ``w x y z`` (gsplat): it is read as
+written, which reproduces the model's renders.
 """
 
 from __future__ import annotations
@@ -61,8 +92,10 @@ from ..errors import ClearsplatError
 from ..scene import Gaussians, Scene
 from .exports import read_export
 
-__all__ = ["EXPORT_FORMATS", "ExportFormat", "ImportReport", "import_export", "export_slots",
-           "viewer_rotation", "load_views", "NEAR_FRACTION", "MIN_NEAR_SHARE"]
+__all__ = ["EXPORT_FORMATS", "ExportFormat", "MODEL_FORMATS", "ModelExport", "ImportReport",
+           "import_export", "export_slots", "viewer_rotation", "longlrm_frame", "load_views",
+           "read_camera_params", "NEAR_FRACTION", "MIN_NEAR_SHARE", "MIN_SEEN_SHARE",
+           "MAX_ORDER_AMBIGUOUS", "VOXEL_ORDER_SHARE"]
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -102,7 +135,9 @@ class ExportFormat:
         integer convention), half a pixel from ours: the cameras' principal points are moved
         by +0.5 px so that every vertex projects into its own pixel.
     voxelized : bool
-        The upstream default fuses pixels into voxels: the file holds no association.
+        The upstream default fuses pixels into voxels: the file holds no association, and
+        each voxel's view is recovered from the images
+        (:func:`clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``).
     cut_note : str
         A cut the export may apply that drops vertices without a record.
     source : str
@@ -163,6 +198,95 @@ EXPORT_FORMATS = {
         order="vhws", trim=0, spp=1, opacity="logit", frame="world", rotations="frame"),
 }
 
+@dataclass(frozen=True)
+class ModelExport:
+    """An export whose vertex order no longer gives each vertex's view and pixel.
+
+    Attributes
+    ----------
+    association : {"ordered", "voxels-or-ordered", "ranked-or-ordered", "refused"}
+        ``"ordered"``: one Gaussian per kept pixel, view after view in ``(view, row, col)``
+        order with unknown cuts; views and pixels from the geometry
+        (:func:`~clearsplat.adapters.associate.associate_ordered`). ``"voxels-or-ordered"``:
+        voxel-merged when the vertices are sorted by voxel key, then (and when in no order at
+        all) each Gaussian's view from the images
+        (:func:`~clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``), else
+        ordered. ``"ranked-or-ordered"``: from the images when the export ranked its vertices
+        by opacity (pruning), else ordered. ``"refused"``: the file cannot be filtered.
+    opacity : {"logit", "raw"}
+    frame : {"world", "da3", "longlrm", "first-rotation"}
+        ``"world"``: the cameras' frame (the model's predicted cameras). ``"da3"``: the
+        cameras' frame or Depth Anything 3's normalised frame of their poses, fitted to the
+        pixel rays. ``"longlrm"``: Long-LRM's normalised frame of the cameras
+        (:func:`longlrm_frame`).
+    bands : int
+        SH coefficients per channel the export writes.
+    half_pixel : bool
+        The model puts pixel ``(row, col)`` at image coordinates ``(col, row)``: the
+        cameras' principal points are moved by +0.5 px (as :class:`ExportFormat`).
+    centred : bool
+        A per-pixel vertex lies on the ray through its pixel's centre (no offsets): with the
+        right cameras it projects there, within :data:`CENTRE_PX`; an ordered import where
+        fewer than :data:`MIN_NEAR_SHARE` do is refused.
+    source : str
+    """
+
+    association: str
+    opacity: str
+    frame: str
+    bands: int = 1
+    half_pixel: bool = False
+    centred: bool = False
+    source: str = ""
+
+
+#: Exports whose vertex order no longer gives each vertex's view and pixel (details:
+#: ``docs/backbones.md``): the association is recovered from the geometry
+#: (:func:`clearsplat.adapters.associate.associate_ordered`) or the images
+#: (:func:`clearsplat.adapters.associate.associate_fused`).
+MODEL_FORMATS = {
+    "da3": ModelExport(
+        association="ordered", opacity="logit", frame="da3",
+        source="ByteDance-Seed/Depth-Anything-3 src/depth_anything_3/utils/export/gs.py "
+               "(export_to_gs_ply) + utils/gsply_helpers.py (save_gaussian_ply)"),
+    "worldmirror": ModelExport(
+        association="voxels-or-ordered", opacity="raw", frame="world", half_pixel=True,
+        centred=True,
+        source="Tencent-Hunyuan/HunyuanWorld-Mirror infer.py + src/utils/save_utils.py "
+               "(save_gs_ply); Tencent-Hunyuan/HY-World-2.0 hyworld2/worldrecon/hyworldmirror/"
+               "utils/inference_utils.py (save_results)"),
+    "longlrm": ModelExport(
+        association="ranked-or-ordered", opacity="logit", frame="longlrm", bands=16,
+        centred=True,
+        source="arthurhero/Long-LRM model/llrm.py (LongLRM.forward, save_gaussian_ply)"),
+    "volsplat": ModelExport(
+        association="refused", opacity="logit", frame="first-rotation",
+        source="ziplab/VolSplat src/model/ply_export.py (save_gaussian_ply)"),
+}
+
+#: Least share of the Gaussians whose recovered view sees them (unambiguous): below it the
+#: cameras do not fit the export and the import is refused (unless ``allow_misaligned``).
+MIN_SEEN_SHARE = 0.5
+#: A WorldMirror export in neither voxel nor pixel order (its seeded subsample above 5 million
+#: Gaussians) breaks the per-pixel order at about every other vertex; one in pixel order at
+#: almost none. More ambiguous vertices than this share and the order is taken as lost.
+MAX_ORDER_AMBIGUOUS = 0.1
+#: Scales tried on Depth Anything 3's normalised frame, nearest first, when it does not fit as
+#: it is. The model rescales its own poses to the given (normalised) ones by their Umeyama
+#: scale, so its frame is off only by its pose errors (unless that scale hit its clamp, [1/3,
+#: 3]): steps of 10 % (a fit converges from within about 10 %) up to about 50 %.
+DA3_SCALES = tuple(k for j in range(1, 5) for k in (1.1 ** j, 1.1 ** -j))
+#: Pixels a DA3 vertex's projection may fall back within one image row (offsets, a frame not
+#: yet fitted) before it is taken as the start of the next row.
+DA3_ROW_TOLERANCE = 4.0
+#: Pixels (per axis) within which a vertex of a ``centred`` export projects onto its pixel's
+#: centre with the right cameras (they put it there up to float32 round-off); with other
+#: cameras the projections spread over the pixel, 4 % of them this near.
+CENTRE_PX = 0.1
+#: Voxel order: ``x`` falls back below its running maximum by at most a voxel; taken as such
+#: when the 99th percentile of that fall-back is within this share of the ``x`` extent.
+VOXEL_ORDER_SHARE = 0.02
+
 _ORDERS = ("vhws", "hwsv")
 _FRAMES = ("world", "first-rotation", "middle-rotation", "viewer", "first-camera")
 _ALIGN = ("auto", "none", "scale", "scale-shift")
@@ -204,6 +328,13 @@ class ImportReport:
         pixel centre along each axis; below :data:`MIN_NEAR_SHARE` the import is refused.
     near_px : float
         ``max(1, NEAR_FRACTION * max(height, width))``.
+    association : str
+        For a recovered association (:data:`MODEL_FORMATS`, voxels): its one-line summary
+        (how many Gaussians got a view, how many are ambiguous); empty otherwise. The pixel
+        of a recovered vertex is the one its centre projects to, so ``inside_pixel`` then
+        says only where the centres sit in their pixels.
+    ambiguous : int
+        Gaussians whose recovered view is not clearly right.
     """
 
     format: str
@@ -218,6 +349,8 @@ class ImportReport:
     notes: list = field(default_factory=list)
     near_pixel: float = 0.0
     near_px: float = 1.0
+    association: str = ""
+    ambiguous: int = 0
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -227,6 +360,8 @@ class ImportReport:
         fit = "" if self.aligned == "none" else (
             f"; fitted {self.aligned}: scale {self.scale:.6g}, shift "
             f"({', '.join(f'{x:.4g}' for x in self.shift)})")
+        if self.association:
+            return f"{self.num_vertices:,} vertices; {self.association}{fit}"
         return (f"{self.num_vertices:,} vertices; {100 * self.inside_pixel:.2f} % project into "
                 f"their pixel (median {self.median_px:.3f} px, 99th percentile "
                 f"{self.p99_px:.3f} px), {100 * self.near_pixel:.2f} % within "
@@ -396,14 +531,17 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     path : str or os.PathLike
         The ``.ply`` the model's export function wrote.
     format : str
-        One of :data:`EXPORT_FORMATS`.
+        One of :data:`EXPORT_FORMATS` (the association follows from the vertex order) or
+        :data:`MODEL_FORMATS` (it is recovered from the geometry or the images).
     cameras : sequence of Camera
         The model's context views, in its view order, at the resolution the model saw (all
         the same size). Their frame is the world of the result.
     images : sequence of (H, W, 3) arrays, optional
-        Those views' images in [0, 1] (the filter needs them).
+        Those views' images in [0, 1] (the filter needs them; so does the association of
+        fused Gaussians: voxels, Long-LRM's pruned exports).
     trim, spp, opacity_cut, order : optional
-        Override the format's defaults (``trim=0`` for an untrimmed export, ...).
+        Override the format's defaults (``trim=0`` for an untrimmed export, ...); not for
+        :data:`MODEL_FORMATS`.
     grid : (rows, cols), optional
         Per-view grid of a latent-grid model (``resplat``); inferred when left out.
     align : {"auto", "none", "scale", "scale-shift"}
@@ -411,41 +549,105 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         pixel-aligned vertices to their pixel rays. ``"auto"``: ``"scale-shift"`` for the
         ``viewer`` frame (whose median and scale are not recorded), ``"none"`` otherwise.
     voxelized : bool, optional
-        Whether the model fused pixels into voxels (AnySplat's released configs do); such a
-        file holds no association and is refused.
+        Whether the model fused pixels into voxels (``anysplat``: its released configs do,
+        the default); each voxel's view is then recovered from the images
+        (:func:`clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``).
+        ``False``: a per-pixel export in the model's order.
     half_pixel : bool, optional
         Move the cameras' principal points by +0.5 px (VGGT's pixel convention, AnySplat).
     allow_misaligned : bool
         Return the scene even when fewer than :data:`MIN_NEAR_SHARE` of the pixel-aligned
-        vertices project near their pixel (``ImportReport.near_pixel``); by default such an
-        import, whose association is wrong, is refused.
+        vertices project near their pixel (``ImportReport.near_pixel``), or, for
+        :data:`MODEL_FORMATS` and voxels, when the cameras see fewer than
+        :data:`MIN_SEEN_SHARE` of them; by default such an import, whose association is
+        wrong, is refused.
 
     Returns
     -------
     scene : Scene
-        Gaussians in the cameras' world, ``view_id`` and ``pixel_id`` from the layout
-        (``pixel_id = -1`` on a latent grid), the (possibly shifted) cameras, the images, and
-        the model's render settings (those of the adapter: ReSplat's antialiased mode,
-        AnySplat's radius clip).
+        Gaussians in the cameras' world, in the file's vertex order (so a mask over the
+        scene indexes the file), ``view_id`` and ``pixel_id`` (``-1`` on a latent grid, for
+        fused Gaussians and for recovered vertices outside their view's image), the
+        (possibly shifted) cameras, the images, and the model's render settings (those of
+        the adapter: ReSplat's antialiased mode, AnySplat's radius clip).
     report : ImportReport
 
     Raises
     ------
     ClearsplatError
         In one line, naming the file: the vertex count does not fit the layout (with the
-        layouts that would fit, or why the association is lost: an opacity cut, voxels);
-        the opacity column does not hold what the format says; the vertices do not project
-        near their pixels (field ``format`` with the formats whose frame fits, else
-        ``vertex``); bad cameras or images.
+        layouts that would fit, or why the association is lost: an opacity cut); the opacity
+        column does not hold what the format says; the vertices do not project near their
+        pixels (field ``format`` with the formats whose frame fits, else ``vertex``); the
+        cameras do not fit a recovered association (field ``cameras``); an export that
+        cannot be imported (``volsplat``); missing images where they are needed; bad
+        cameras or images.
     """
+    if format in MODEL_FORMATS:
+        given = dict(trim=trim, spp=spp, opacity_cut=opacity_cut, order=order, grid=grid,
+                     voxelized=voxelized, half_pixel=half_pixel)
+        for name, value in list(given.items()) + [("align", None if align == "auto" else 1)]:
+            if value is not None:
+                raise ClearsplatError(f"does not apply to {format}, whose association is "
+                                      "recovered from the geometry or the images", field=name)
+        cams = _checked_cameras(cameras)
+        if images is not None:
+            images = _checked_images(images, len(cams), cams[0].height, cams[0].width)
+        return _import_model(path, format, cams, images, allow_misaligned=allow_misaligned)
+    fmt = _format_with_options(format, dict(
+        trim=trim, spp=spp, opacity_cut=opacity_cut, order=order, voxelized=voxelized,
+        half_pixel=half_pixel), align)
+    given = list(cameras)
+    cams = _checked_cameras(given)
+    v, h, w = len(cams), cams[0].height, cams[0].width
+    if fmt.half_pixel:
+        cams = [_shift_principal_point(c, 0.5) for c in cams]
+    if images is not None:
+        images = _checked_images(images, v, h, w)
+    g, _, _ = read_export(path, opacity=fmt.opacity, color="sh")
+    if fmt.voxelized:
+        return _import_fused(path, format, g, cams, images, allow_misaligned=allow_misaligned,
+                             notes=["voxel-fused export: each voxel's view recovered from the "
+                                    "images"])
+    view_id, pixel_id, (gh, gw) = _layout(path, format, fmt, g, cams, grid)
+
+    # the frame: s A x + b, with s and b fitted where the export did not record them
+    a, b, ft = _frame(fmt, cams)
+    a_pts = g.means.astype(np.float64) @ a.T
+    mode = ("scale-shift" if fmt.frame == "viewer" else "none") if align == "auto" else align
+    s = 1.0
+    if mode != "none":
+        aligned = pixel_id >= 0
+        if aligned.sum() < 4:
+            raise ClearsplatError(f"cannot align: {int(aligned.sum())} pixel-aligned vertices",
+                                  path=path, field="align")
+        o, d = _pixel_rays(cams, view_id[aligned], pixel_id[aligned])
+        s, b = _fit(a_pts[aligned], b, o, d, mode)
+    means = s * a_pts + b
+    out = _turned(path, fmt, g, means, s, a, ft, cams, view_id)
+    scene = Scene(out, view_id=view_id, pixel_id=pixel_id, cameras=cams, images=images,
+                  render_settings=_render_settings(format))
+    scene.validate(path=path)
+    notes = [] if (pixel_id >= 0).any() else \
+        ["no vertex is pixel-aligned (latent grid): the filter associates them through the "
+         "rasterizer"]
+    if fmt.cut_note:
+        notes.append(fmt.cut_note + "; the vertex count matched, so none were dropped")
+    report = ImportReport(format=format, num_vertices=len(g), scale=float(s),
+                          shift=[float(x) for x in b], aligned=mode, grid=(gh, gw), notes=notes,
+                          **_pixel_stats(means, cams, view_id, pixel_id))
+    if (pixel_id >= 0).any() and report.near_pixel < MIN_NEAR_SHARE and not allow_misaligned:
+        raise _misaligned(path, format, fmt, given, report)
+    return scene, report
+
+
+def _format_with_options(format: str, options: dict, align: str) -> ExportFormat:
+    """The format's layout with the options given, checked."""
     if format not in EXPORT_FORMATS:
         raise ClearsplatError(f"unknown format {format!r} (known: "
-                              f"{', '.join(EXPORT_FORMATS)})", field="format")
-    given = list(cameras)
-    fmt = EXPORT_FORMATS[format]
-    fmt = replace(fmt, **{k: v for k, v in dict(
-        trim=trim, spp=spp, opacity_cut=opacity_cut, order=order, voxelized=voxelized,
-        half_pixel=half_pixel).items() if v is not None})
+                              f"{', '.join(list(EXPORT_FORMATS) + list(MODEL_FORMATS))})",
+                              field="format")
+    fmt = replace(EXPORT_FORMATS[format], **{k: v for k, v in options.items() if v is not None})
     if align not in _ALIGN:
         raise ClearsplatError(f"must be one of {_ALIGN}, got {align!r}", field="align")
     if not 0 <= float(fmt.opacity_cut) < 1:       # also refuses NaN
@@ -454,23 +656,13 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         raise ClearsplatError(f"must be >= 0, got {fmt.trim}", field="trim")
     if int(fmt.spp) < 1:
         raise ClearsplatError(f"must be >= 1, got {fmt.spp}", field="spp")
-    cams = _checked_cameras(given)
-    v, h, w = len(cams), cams[0].height, cams[0].width
-    if fmt.half_pixel:
-        cams = [_shift_principal_point(c, 0.5) for c in cams]
-    if images is not None:
-        images = _checked_images(images, v, h, w)
+    return fmt
 
-    g, _, _ = read_export(path, opacity=fmt.opacity, color="sh")
+
+def _layout(path, format, fmt, g, cams, grid):
+    """``view_id``, ``pixel_id`` and the per-view grid of a layout format's vertices."""
     n = len(g)
-    if fmt.voxelized:
-        raise ClearsplatError(
-            f"{format} fuses pixels into voxels by default (voxelize: true): vertex k is voxel "
-            "k, mixed from pixels of several views, and the file does not say which; build the "
-            f"scene with clearsplat.adapters.{fmt.adapter} and voxel_inverse from "
-            "clearsplat.adapters.anysplat_voxel_inverse (examples/anysplat_inference.py), or "
-            "pass voxelized=False (--no-voxels) for a model run with voxelize: false",
-            path=path, field="vertex")
+    v, h, w = len(cams), cams[0].height, cams[0].width
     if fmt.grid == "latent":
         gh, gw = (int(grid[0]), int(grid[1])) if grid is not None else \
             _latent_grid(n + _trimmed(fmt, v, h, w, n), v, h, w, fmt.spp)
@@ -486,25 +678,14 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
             f"{g.opacities.min():.3g}: it was not written with that cut (pass opacity_cut=0)",
             path=path, field="opacity")
     pixel_id = cell_id if (gh, gw) == (h, w) else np.full(n, -1, dtype=np.int64)
+    return view_id, pixel_id, (gh, gw)
 
-    # the frame: s A x + b, with s and b fitted where the export did not record them
-    a, b, ft = _frame(fmt, cams)
-    a_pts = g.means.astype(np.float64) @ a.T
-    mode = ("scale-shift" if fmt.frame == "viewer" else "none") if align == "auto" else align
-    s = 1.0
-    notes = []
-    if mode != "none":
-        aligned = pixel_id >= 0
-        if aligned.sum() < 4:
-            raise ClearsplatError(f"cannot align: {int(aligned.sum())} pixel-aligned vertices",
-                                  path=path, field="align")
-        o, d = _pixel_rays(cams, view_id[aligned], pixel_id[aligned])
-        s, b = _fit(a_pts[aligned], b, o, d, mode)
-    means = s * a_pts + b
-    scales = (g.scales.astype(np.float64) * s).astype(np.float32)
 
-    # rotations to world
+def _turned(path, fmt, g, means, s, a, ft, cams, view_id) -> Gaussians:
+    """The Gaussians at ``means`` with scales times ``s``, rotations and SH bands to world."""
     from ..adapters._common import matrices_to_quats, quats_to_matrices
+    n = len(g)
+    scales = (g.scales.astype(np.float64) * s).astype(np.float32)
     rot = quats_to_matrices(g.quats) if n else np.zeros((0, 3, 3))
     if fmt.rotations == "camera":
         c2w = np.stack([c.camera_to_world[:3, :3] for c in cams])
@@ -512,23 +693,29 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     else:
         rot = a @ rot
     quats = matrices_to_quats(rot).astype(np.float32) if n else g.quats
-    sh = g.sh
-    if sh.shape[1] > 1 and fmt.sh_frame == "file" and not np.allclose(a, np.eye(3)):
-        from ..adapters.sh_rotation import rotate_sh
-        try:
-            sh = rotate_sh(sh, a)
-        except ClearsplatError as e:
-            raise ClearsplatError(
-                f"the f_rest bands are in the export's frame and must turn to the cameras' "
-                f"({e.reason}); export the DC band only, or give cameras in the export's frame",
-                path=path, field="f_rest") from None
-    out = Gaussians(means=means.astype(np.float32), scales=scales, quats=quats,
-                    opacities=g.opacities, sh=sh)
-    scene = Scene(out, view_id=view_id, pixel_id=pixel_id, cameras=cams, images=images,
-                  render_settings=_render_settings(format))
-    scene.validate(path=path)
+    sh = g.sh if fmt.sh_frame != "file" else _turned_sh(path, g.sh, a)
+    return Gaussians(means=means.astype(np.float32), scales=scales, quats=quats,
+                     opacities=g.opacities, sh=sh)
 
-    res = _residuals(means, cams, view_id, pixel_id)
+
+def _turned_sh(path, sh, a):
+    """SH bands in the file's frame turned by ``A`` to the cameras' (the DC band stays)."""
+    if sh.shape[1] == 1 or np.allclose(a, np.eye(3)):
+        return sh
+    from ..adapters.sh_rotation import rotate_sh
+    try:
+        return rotate_sh(sh, a)
+    except ClearsplatError as e:
+        raise ClearsplatError(
+            f"the f_rest bands are in the export's frame and must turn to the cameras' "
+            f"({e.reason}); export the DC band only, or give cameras in the export's frame",
+            path=path, field="f_rest") from None
+
+
+def _pixel_stats(means, cams, view_id, pixel_id) -> dict:
+    """The report's measures of how the pixel-aligned vertices sit on their pixels."""
+    h, w = cams[0].height, cams[0].width
+    res = _residuals(means.astype(np.float64), cams, view_id, pixel_id)
     fin = res[np.isfinite(res).all(axis=1)]
     aligned_n = int((pixel_id >= 0).sum())
     inside = float((np.abs(fin) <= 0.5 + 1e-3).all(axis=1).sum() / aligned_n) if aligned_n \
@@ -536,18 +723,310 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     dist = np.linalg.norm(fin, axis=1) if len(fin) else np.array([np.nan])
     near_px = max(1.0, NEAR_FRACTION * max(h, w))
     near = float((np.abs(res) <= near_px).all(axis=1).sum() / aligned_n) if aligned_n else 0.0
-    if not aligned_n:
-        notes.append("no vertex is pixel-aligned (latent grid): the filter associates them "
-                     "through the rasterizer")
-    if fmt.cut_note:
-        notes.append(fmt.cut_note + "; the vertex count matched, so none were dropped")
-    report = ImportReport(format=format, num_vertices=n, scale=float(s),
-                          shift=[float(x) for x in b], aligned=mode, inside_pixel=inside,
-                          median_px=float(np.median(dist)) if aligned_n else float("nan"),
-                          p99_px=float(np.percentile(dist, 99)) if aligned_n else float("nan"),
-                          grid=(gh, gw), notes=notes, near_pixel=near, near_px=near_px)
-    if aligned_n and near < MIN_NEAR_SHARE and not allow_misaligned:
-        raise _misaligned(path, format, fmt, given, report)
+    return dict(inside_pixel=inside,
+                median_px=float(np.median(dist)) if aligned_n else float("nan"),
+                p99_px=float(np.percentile(dist, 99)) if aligned_n else float("nan"),
+                near_pixel=near, near_px=near_px)
+
+
+# ------------------------------------------------------------------------------------------------
+# exports whose vertex order no longer gives the association
+# ------------------------------------------------------------------------------------------------
+def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
+    """A :data:`MODEL_FORMATS` export: its frame, the recovered association, the scene."""
+    spec = MODEL_FORMATS[format]
+    if spec.association == "refused":
+        raise _refusal(path, format, spec)
+    g, _, _ = read_export(path, opacity=spec.opacity, color="sh")
+    if g.sh.shape[1] != spec.bands:
+        raise ClearsplatError(f"{format}'s export writes {_bands(spec.bands)}, this file "
+                              f"{_bands(g.sh.shape[1])}: it is not {format}'s export",
+                              path=path, field="f_rest")
+    if spec.half_pixel:
+        cams = [_shift_principal_point(c, 0.5) for c in cams]
+    min_seen = 0.0 if allow_misaligned else MIN_SEEN_SHARE
+    if spec.frame == "da3":
+        assoc, frame, notes = _da3_association(path, g.means, cams, min_seen)
+        return _recovered(path, format, _similar(path, g, frame), assoc, cams, images, frame,
+                          notes, aligned="scale-shift")
+    frame = longlrm_frame(cams) if spec.frame == "longlrm" else _identity()
+    moved = _similar(path, g, frame)
+    if spec.association == "voxels-or-ordered" and _voxel_sorted(g.means):
+        note = "vertices in voxel order (voxel-merged): each voxel's view recovered from the images"
+    elif spec.association == "ranked-or-ordered" and _opacity_ranked(g.opacities):
+        note = ("vertices ranked by opacity (pruned): each Gaussian's view recovered from the "
+                "images")
+    else:
+        assoc = _ordered(path, format, spec, moved.means, cams, min_seen,
+                         fallback=spec.association == "voxels-or-ordered")
+        if assoc is not None:
+            return _recovered(path, format, moved, assoc, cams, images, frame,
+                              ["vertices in pixel order, view after view: each one's view and "
+                               "pixel recovered from where its centre projects"])
+        note = ("vertices in neither voxel nor pixel order (subsampled): each one's view "
+                "recovered from the images")
+    return _import_fused(path, format, moved, cams, images, allow_misaligned=allow_misaligned,
+                         notes=[note], frame=frame)
+
+
+def _bands(k: int) -> str:
+    return "the DC band only" if k == 1 else f"{k} SH coefficients per channel"
+
+
+def _identity():
+    from ..adapters.associate import Similarity
+    return Similarity.identity()
+
+
+def _refusal(path, format: str, spec) -> ClearsplatError:
+    """Why VolSplat's export cannot be imported, naming the file and the field at fault."""
+    g, _, _ = read_export(path, opacity=spec.opacity, color="sh")
+    constant = bool(len(g)) and np.allclose(g.scales, 0.01, rtol=1e-4)
+    found = f"all {len(g):,} of this file's are" if constant else \
+        "this file's are not, so it may not be its export either"
+    return ClearsplatError(
+        f"{format}'s save_gaussian_ply writes every scale as 0.01 ({found}) and pads or "
+        "truncates the voxels to views x height x width Gaussians, so renders of the file are "
+        "not the model's and its vertex order names no view: filtering it would judge "
+        "Gaussians the model did not predict; take the encoder's Gaussians in the model "
+        "instead (means, covariances through clearsplat.adapters.covariance_to_scales_quats, "
+        "harmonics, opacities) and clearsplat.adapters.associate.associate_fused(gaussians, "
+        "cameras, images).to_scene(gaussians, cameras, images)", path=path, field="scale_0")
+
+
+def _da3_association(path, means, cams, min_seen):
+    """Depth Anything 3's frame and association.
+
+    With given poses its export is in its normalised frame of them
+    (:func:`clearsplat.adapters.associate.normalised_frame`), rescaled by the model only
+    approximately (an Umeyama scale, clamped to [1/3, 3]); without, in the frame of its own
+    predicted cameras (the cameras to give). Each is tried, the normalised one also rescaled
+    by :data:`DA3_SCALES`, and the scale and shift fitted (:func:`_da3_fit`); the first whose
+    fit puts at least :data:`MIN_NEAR_SHARE` of the pinned vertices near their pixel is kept
+    (with ``min_seen = 0``, ``allow_misaligned``: the best).
+    """
+    from ..adapters.associate import Similarity, associate_ordered, normalised_frame
+    norm = normalised_frame(cams)
+    tries = [("DA3's normalised frame of the cameras' poses", norm),
+             ("the cameras' frame", Similarity.identity())]
+    tries += [(f"DA3's normalised frame of the cameras' poses, rescaled by {k:.3g}",
+               Similarity(norm.scale * k, norm.rotation, norm.translation)) for k in DA3_SCALES]
+    means = np.asarray(means, dtype=np.float64)
+    best = None
+    for name, init in tries:
+        fitted = _da3_fit(means, cams, init)
+        if fitted is not None and (best is None or fitted[1] > best[2]):
+            best = (name, fitted[0], fitted[1])
+        if best is not None and best[2] >= MIN_NEAR_SHARE:
+            break
+    if best is None or (best[2] < MIN_NEAR_SHARE and min_seen > 0):
+        share = 0.0 if best is None else best[2]
+        raise ClearsplatError(
+            f"the vertices fit neither the cameras' frame nor DA3's normalised frame of their "
+            f"poses: {100 * share:.1f} % of the vertices whose pixel the order pins project "
+            f"near it (at least {100 * MIN_NEAR_SHARE:.0f} % needed); the cameras (their order, "
+            "--views), the image size or the format do not match the export; "
+            "allow_misaligned=True (--allow-misaligned) keeps it", path=path, field="cameras")
+    name, frame, share = best
+    try:
+        assoc = associate_ordered(frame.apply(means), cams, min_seen=min_seen)
+    except ClearsplatError as e:
+        raise ClearsplatError(e.reason, path=path, field=e.field) from None
+    return assoc, frame, [f"frame: {name}; scale and shift fitted to the rays of the "
+                          f"pixels the order pins ({100 * share:.1f} % near them)"]
+
+
+def _da3_fit(means, cams, init):
+    """Scale and shift of a DA3 frame (``s A x + b``, ``A`` the rotation of ``init``) fitted to
+    the pixel rays of the vertices whose pixel the order pins (:func:`_da3_pinned`), three
+    times, re-associating in between. Returns ``(frame, share of those vertices near their
+    pixel)``, or None when too few are pinned."""
+    from ..adapters.associate import Similarity, associate_ordered
+    frame = init
+    for _ in range(3):
+        pts = frame.apply(means)
+        assoc = associate_ordered(pts, cams, min_seen=0.0)
+        pinned = _da3_pinned(pts, cams, assoc.view_id)
+        use = pinned >= 0
+        if use.sum() < 2 * cams[0].width:
+            return None
+        o, d = _pixel_rays(cams, assoc.view_id[use], pinned[use])
+        try:
+            s, b = _fit(means[use] @ frame.rotation.T, frame.translation, o, d, "scale-shift")
+        except ClearsplatError:
+            return None
+        frame = Similarity(s, frame.rotation, b)
+    res = _residuals(frame.apply(means[use]), cams, assoc.view_id[use], pinned[use])
+    near = max(1.0, NEAR_FRACTION * max(cams[0].height, cams[0].width))
+    return frame, float((np.abs(res) <= near).all(axis=1).mean())
+
+
+def _da3_pinned(pts, cams, view_id) -> np.ndarray:
+    """(N,) pixel of each vertex that DA3's order pins, else -1.
+
+    Within a view's run the kept pixels follow in row-major order between the border trims
+    (``int(8/256 H)`` rows, ``int(8/256 W)`` columns); the depth cut leaves gaps. A row that
+    kept every pixel between the trims (as many vertices as the trimmed width, its first and
+    last near the trims' columns) pins its vertices' columns exactly; its row is counted up
+    from the last row above the bottom trim (the ground is rarely cut), a gap of rows showing
+    as a jump in the projected rows. Rows are told apart where the projected column falls back
+    by more than :data:`DA3_ROW_TOLERANCE` px.
+    """
+    tol = DA3_ROW_TOLERANCE
+    out = np.full(len(pts), -1, dtype=np.int64)
+    for v, cam in enumerate(cams):
+        idx = np.flatnonzero(view_id == v)
+        h, w = cam.height, cam.width
+        th, tw = int(8 / 256 * h), int(8 / 256 * w)
+        if len(idx) < 2 or not th or not tw:
+            continue
+        uv, z = cam.project(pts[idx])
+        uv[~(z > 0)] = -1e6                  # behind the camera: its segment pins nothing
+        segs = np.split(np.arange(len(idx)), np.flatnonzero(np.diff(uv[:, 0]) < -tol) + 1)
+        approx = np.array([np.median(uv[s, 1]) for s in segs])
+        jumps = np.maximum(1, np.round(np.diff(approx)).astype(np.int64))
+        rows = h - th - 1 - np.concatenate([np.cumsum(jumps[::-1])[::-1], [0]])
+        for seg, r in zip(segs, rows):
+            u = uv[seg]
+            if len(seg) == w - 2 * tw and r >= th and abs(u[0, 0] - tw - 0.5) <= tol and \
+                    abs(u[-1, 0] - (w - tw - 0.5)) <= tol and np.ptp(u[:, 1]) <= tol:
+                out[idx[seg]] = r * w + tw + np.arange(w - 2 * tw)
+    return out
+
+
+def longlrm_frame(cameras):
+    """Long-LRM's normalisation of its input cameras, as the map back to them.
+
+    ``data/dataset.py`` (``__getitem__``) turns the cameras by ``pos_avg^-1``, with ``pos_avg``
+    = [right, down, forward, mean centre] from the mean camera axes (Gram-Schmidt), and
+    divides their translations by the largest absolute coordinate of the turned centres; the
+    Gaussians are predicted in that frame. Computed from the cameras given (the same either
+    way when they are already normalised).
+
+    Returns
+    -------
+    clearsplat.adapters.associate.Similarity
+        ``x_world = m R x + p``.
+    """
+    from ..adapters.associate import Similarity
+    c2w = np.stack([c.camera_to_world for c in cameras])
+    pos = c2w[:, :3, 3].mean(0)
+    fwd = c2w[:, :3, 2].mean(0)
+    down = c2w[:, :3, 1].mean(0)
+    fwd = fwd / np.linalg.norm(fwd)
+    down = down - down.dot(fwd) * fwd
+    down = down / np.linalg.norm(down)
+    rot = np.stack([np.cross(down, fwd), down, fwd], axis=1)
+    m = float(np.abs((c2w[:, :3, 3] - pos) @ rot).max())
+    if not (m > 0 and np.isfinite(rot).all()):
+        raise ClearsplatError("the cameras share one centre or cancel out each other's axes: "
+                              "Long-LRM's normalisation is undefined", field="cameras")
+    return Similarity(m, rot, pos)
+
+
+def _similar(path, g, frame) -> Gaussians:
+    """The Gaussians mapped by a similarity (centres, scales, rotations, SH bands)."""
+    from ..adapters._common import matrices_to_quats, quats_to_matrices
+    rot = np.asarray(frame.rotation, dtype=np.float64)
+    if frame.scale == 1.0 and np.array_equal(rot, np.eye(3)) and not np.any(frame.translation):
+        return Gaussians(means=g.means, scales=g.scales, quats=g.quats, opacities=g.opacities,
+                         sh=g.sh)
+    quats = matrices_to_quats(rot @ quats_to_matrices(g.quats)).astype(np.float32) \
+        if len(g) else g.quats
+    return Gaussians(means=frame.apply(g.means).astype(np.float32),
+                     scales=(g.scales.astype(np.float64) * frame.scale).astype(np.float32),
+                     quats=quats, opacities=g.opacities, sh=_turned_sh(path, g.sh, rot))
+
+
+def _voxel_sorted(means) -> bool:
+    """Whether the centres (in the file's frame) are sorted by a voxel key, ``x`` major, as
+    WorldMirror's voxel merge writes them (``torch.unique`` of ``floor(p / 0.002)``,
+    flattened): ``x`` then never falls back by more than a voxel. Told by the 99th percentile
+    of the fall-back below the running maximum, within :data:`VOXEL_ORDER_SHARE` of the
+    ``x`` extent (whatever the voxel size); in pixel order ``x`` falls back a whole image
+    width at every row."""
+    x = np.asarray(means, dtype=np.float64)[:, 0]
+    if len(x) < 2 or not np.ptp(x) > 0:
+        return False
+    back = np.maximum.accumulate(x) - x
+    return bool(np.quantile(back, 0.99) <= VOXEL_ORDER_SHARE * np.ptp(x))
+
+
+def _opacity_ranked(opacities) -> bool:
+    """Whether the vertices start with a run of non-increasing opacity over half the file:
+    Long-LRM's pruning writes the most opaque first, ranked (``argsort`` descending), and its
+    random picks after them; a per-pixel order is not ranked."""
+    op = np.asarray(opacities)
+    if len(op) < 2:
+        return False
+    rise = np.flatnonzero(np.diff(op) > 0)
+    run = rise[0] + 1 if len(rise) else len(op)
+    return bool(run >= 0.5 * len(op))
+
+
+def _ordered(path, format, spec, means, cams, min_seen, *, fallback: bool):
+    """:func:`clearsplat.adapters.associate.associate_ordered`, checked: the cameras must see
+    at least ``min_seen`` of the vertices and, for a ``centred`` export, put at least
+    :data:`MIN_NEAR_SHARE` of them within :data:`CENTRE_PX` of their pixel's centre (both
+    unless ``min_seen`` is 0). With ``fallback``, None instead of a refusal, and also when more
+    than :data:`MAX_ORDER_AMBIGUOUS` of the vertices break the order (no per-pixel order)."""
+    from ..adapters.associate import associate_ordered
+    try:
+        assoc = associate_ordered(means, cams, min_seen=min_seen)
+    except ClearsplatError as e:
+        if fallback:
+            return None
+        raise ClearsplatError(f"{e.reason}; or the file is not {format}'s export", path=path,
+                              field=e.field) from None
+    if fallback and len(assoc) and assoc.ambiguous.mean() > MAX_ORDER_AMBIGUOUS:
+        return None
+    has = assoc.pixel_id >= 0
+    if spec.centred and min_seen > 0 and has.any():
+        res = _residuals(means[has], cams, assoc.view_id[has], assoc.pixel_id[has])
+        share = float((np.abs(res) <= CENTRE_PX).all(axis=1).mean())
+        if share < MIN_NEAR_SHARE:
+            if fallback:
+                return None
+            raise ClearsplatError(
+                f"only {100 * share:.1f} % of the vertices project within {CENTRE_PX:g} px of "
+                f"their pixel's centre, where {format} places them (at least "
+                f"{100 * MIN_NEAR_SHARE:.0f} % needed): the cameras (their order, size, poses) "
+                f"do not fit the export, or the file is not {format}'s export; "
+                "allow_misaligned=True (--allow-misaligned) keeps it", path=path, field="cameras")
+    return assoc
+
+
+def _import_fused(path, format, g, cams, images, *, allow_misaligned, notes, frame=None):
+    """Gaussians that mix views or carry no order: each one's view from the images."""
+    from ..adapters.associate import associate_fused
+    if images is None:
+        raise ClearsplatError(f"{format}: the input images are needed (each Gaussian's view "
+                              "is recovered from how it reproduces them)", path=path,
+                              field="images")
+    settings = _render_settings(format)
+    assoc = associate_fused(g, cams, images, settings=settings)
+    seen = 1.0 - float(assoc.ambiguous.mean()) if len(assoc) else 1.0
+    if seen < MIN_SEEN_SHARE and not allow_misaligned:
+        raise ClearsplatError(
+            f"only {100 * seen:.1f} % of the Gaussians are seen by an input view with a colour "
+            f"that agrees with its image (at least {100 * MIN_SEEN_SHARE:.0f} % needed): the "
+            f"cameras or images do not fit the export (frame, order, size), or the file is not "
+            f"{format}'s export; allow_misaligned=True (--allow-misaligned) keeps it",
+            path=path, field="cameras")
+    return _recovered(path, format, g, assoc, cams, images, frame or _identity(), notes)
+
+
+def _recovered(path, format, g, assoc, cams, images, frame, notes, *, aligned="none"):
+    """The scene and report of an import whose association was recovered."""
+    scene = Scene(g, view_id=assoc.view_id, pixel_id=assoc.pixel_id, cameras=cams,
+                  images=images, render_settings=_render_settings(format))
+    scene.validate(path=path)
+    report = ImportReport(
+        format=format, num_vertices=len(g), scale=float(frame.scale),
+        shift=[float(x) for x in frame.translation], aligned=aligned,
+        grid=(cams[0].height, cams[0].width), notes=list(notes),
+        association=assoc.summary(), ambiguous=int(np.count_nonzero(assoc.ambiguous)),
+        **_pixel_stats(g.means, cams, assoc.view_id, assoc.pixel_id))
     return scene, report
 
 
@@ -680,9 +1159,11 @@ def load_views(cameras_path, images_dir, *, views=None):
     Parameters
     ----------
     cameras_path : str or os.PathLike
-        A ``cameras.json`` / nerfstudio ``transforms.json`` (or a folder holding one), or a
+        A ``cameras.json`` / nerfstudio ``transforms.json`` (or a folder holding one), a
         COLMAP model folder (``cameras.bin``/``images.bin`` or ``.txt``, or a dataset folder
-        with ``sparse/0``).
+        with ``sparse/0``), or WorldMirror's ``camera_params.json`` (or a folder holding it;
+        :func:`read_camera_params`: no image size or names, so each camera takes the size of
+        its image, and the images are matched by sorted order).
     images_dir : str or os.PathLike
         The images the model saw. Matched to the cameras by file name (the cameras' image
         names, without their folders); when the names do not match, by sorted order if there
@@ -704,38 +1185,17 @@ def load_views(cameras_path, images_dir, *, views=None):
     ------
     ClearsplatError
         Naming the file or option: unreadable cameras or images, an unknown view, too few
-        images, a size that is not a uniform scaling (a crop: write the cropped cameras).
+        images, a size that is not a uniform scaling (a crop: write the cropped cameras),
+        WorldMirror intrinsics whose principal point is not the centre of their image.
     """
     from pathlib import Path
 
-    from .bundle import CAMERAS_FILE, TRANSFORMS_FILE, load_cameras
-    from .colmap import read_colmap
     from .images import read_image
 
     cpath = Path(cameras_path)
-    colmap = cpath.is_dir() and not any((cpath / f).is_file()
-                                        for f in (CAMERAS_FILE, TRANSFORMS_FILE))
-    if colmap:
-        cams, names = read_colmap(cpath)
-    else:
-        cams, paths = load_cameras(cpath)
-        names = [None if p is None else Path(p).name for p in paths]
-    names = [None if n is None else Path(n).name for n in names]
+    cams, names = _view_cameras(cpath)
     if views is not None:
-        picked = []
-        for item in views:
-            key = str(item).strip()
-            if key.lstrip("-").isdigit():
-                i = int(key)
-                if not 0 <= i < len(cams):
-                    raise ClearsplatError(f"view {i} out of range 0..{len(cams) - 1}",
-                                          path=cpath, field="--views")
-            elif key in names:
-                i = names.index(key)
-            else:
-                raise ClearsplatError(f"no camera for image {key!r}", path=cpath,
-                                      field="--views")
-            picked.append(i)
+        picked = [_view_index(item, names, len(cams), cpath) for item in views]
         cams, names = [cams[i] for i in picked], [names[i] for i in picked]
     folder = Path(images_dir)
     if not folder.is_dir():
@@ -752,18 +1212,130 @@ def load_views(cameras_path, images_dir, *, views=None):
                               "holding exactly the model's input images", path=folder,
                               field="--images")
     images, out = [], []
-    for i, (cam, name) in enumerate(zip(cams, chosen)):
+    for cam, name in zip(cams, chosen):
         img = read_image(folder / name)
-        h, w = img.shape[:2]
-        if (h, w) != (cam.height, cam.width):
-            f = w / cam.width
-            if abs(h - cam.height * f) > 1e-9 * h or round(cam.width * f) != w:
-                raise ClearsplatError(
-                    f"image is {w}x{h}, its camera {cam.width}x{cam.height}: not a uniform "
-                    "scaling (a crop, such as DepthSplat's centre crop, changes the principal "
-                    "point; write the cameras of the cropped images)", path=folder / name,
-                    field="size")
-            cam = cam.scaled(f)
         images.append(img)
-        out.append(cam)
+        out.append(_sized(cam, img.shape[:2], folder / name))
     return out, images, chosen
+
+
+def _view_cameras(cpath):
+    """The cameras of a camera file or folder and their image names (None where unknown);
+    WorldMirror's come as ``(K, camera_to_world)`` pairs, sized by their images later."""
+    from pathlib import Path
+
+    from .bundle import CAMERAS_FILE, TRANSFORMS_FILE, load_cameras
+    from .colmap import read_colmap
+
+    ours = cpath.is_dir() and any((cpath / f).is_file() for f in (CAMERAS_FILE, TRANSFORMS_FILE))
+    params = cpath / CAMERA_PARAMS_FILE if cpath.is_dir() else cpath
+    if not ours and params.is_file() and _is_camera_params(params):
+        ks, c2w = read_camera_params(params)
+        return list(zip(ks, c2w)), [None] * len(ks)
+    if cpath.is_dir() and not ours:
+        cams, names = read_colmap(cpath)
+    else:
+        cams, paths = load_cameras(cpath)
+        names = [None if p is None else Path(p).name for p in paths]
+    return cams, [None if n is None else Path(n).name for n in names]
+
+
+def _view_index(item, names, count, cpath) -> int:
+    """A ``--views`` entry (an index or an image name) as a camera index."""
+    key = str(item).strip()
+    if key.lstrip("-").isdigit():
+        i = int(key)
+        if not 0 <= i < count:
+            raise ClearsplatError(f"view {i} out of range 0..{count - 1}", path=cpath,
+                                  field="--views")
+        return i
+    if key in names:
+        return names.index(key)
+    raise ClearsplatError(f"no camera for image {key!r}", path=cpath, field="--views")
+
+
+def _sized(cam, size, image_path) -> Camera:
+    """The camera at its image's size: scaled by one exact factor; a WorldMirror camera
+    (``(K, c2w)``) takes the size, its principal point being the image centre (within a
+    pixel either way)."""
+    h, w = size
+    if not isinstance(cam, Camera):
+        k, c2w = cam
+        if abs(2 * k[0, 2] - w) > 2 or abs(2 * k[1, 2] - h) > 2:
+            raise ClearsplatError(
+                f"the camera's principal point ({k[0, 2]:.6g}, {k[1, 2]:.6g}) is not the centre "
+                f"of its {w}x{h} image: WorldMirror's intrinsics are at the resolution it "
+                "processed; pass the images it saw at that size", path=image_path,
+                field="size")
+        return Camera(K=k, camera_to_world=c2w, width=w, height=h)
+    if (h, w) == (cam.height, cam.width):
+        return cam
+    f = w / cam.width
+    if abs(h - cam.height * f) > 1e-9 * h or round(cam.width * f) != w:
+        raise ClearsplatError(
+            f"image is {w}x{h}, its camera {cam.width}x{cam.height}: not a uniform "
+            "scaling (a crop, such as DepthSplat's centre crop, changes the principal "
+            "point; write the cameras of the cropped images)", path=image_path, field="size")
+    return cam.scaled(f)
+
+
+#: The camera file WorldMirror writes (``save_camera_params``).
+CAMERA_PARAMS_FILE = "camera_params.json"
+
+
+def _is_camera_params(path) -> bool:
+    """Whether a JSON file has WorldMirror's ``camera_params.json`` layout."""
+    from .bundle import _read_json
+    if path.suffix.lower() != ".json":
+        return False
+    doc = _read_json(path)
+    return isinstance(doc, dict) and "frames" not in doc and \
+        isinstance(doc.get("extrinsics"), list) and isinstance(doc.get("intrinsics"), list)
+
+
+def read_camera_params(path):
+    """WorldMirror's ``camera_params.json`` (``save_camera_params`` in
+    ``src/utils/save_utils.py`` of HunyuanWorld-Mirror and HY-World-2.0).
+
+    ``{"num_cameras": N, "extrinsics": [{"camera_id": i, "matrix": 4x4}], "intrinsics":
+    [{"camera_id": i, "matrix": 3x3}]}``, where the "extrinsics" are the predicted
+    ``camera_poses``: OpenCV **camera-to-world**; intrinsics in pixels at the resolution the
+    model processed (principal point at its centre). Cameras are ordered by ``camera_id``.
+
+    Returns
+    -------
+    intrinsics : (N, 3, 3) float64
+    camera_to_world : (N, 4, 4) float64
+
+    Raises
+    ------
+    ClearsplatError
+        Naming the file and the entry: missing keys, ids that are not 0..N-1 in both lists, a
+        matrix of the wrong shape or with non-finite values.
+    """
+    from .bundle import _read_json
+    doc = _read_json(path)
+    out = []
+    for key, shape in (("extrinsics", (4, 4)), ("intrinsics", (3, 3))):
+        entries = doc.get(key) if isinstance(doc, dict) else None
+        if not isinstance(entries, list) or not entries:
+            raise ClearsplatError("expected a non-empty list", path=path, field=key)
+        mats = {}
+        for i, e in enumerate(entries):
+            try:
+                cid, m = int(e["camera_id"]), np.asarray(e["matrix"], dtype=np.float64)
+            except (TypeError, KeyError, ValueError):
+                raise ClearsplatError("expected {'camera_id': int, 'matrix': [[...]]}",
+                                      path=path, field=f"{key}[{i}]") from None
+            if m.shape != shape or not np.isfinite(m).all():
+                raise ClearsplatError(f"expected a finite {shape[0]}x{shape[1]} matrix, got "
+                                      f"shape {m.shape}", path=path, field=f"{key}[{i}]")
+            mats[cid] = m
+        if sorted(mats) != list(range(len(entries))):
+            raise ClearsplatError(f"camera ids must be 0..{len(entries) - 1}, got "
+                                  f"{sorted(mats)}", path=path, field=key)
+        out.append(np.stack([mats[i] for i in range(len(entries))]))
+    if len(out[0]) != len(out[1]):
+        raise ClearsplatError(f"{len(out[0])} extrinsics and {len(out[1])} intrinsics",
+                              path=path, field="intrinsics")
+    return out[1], out[0]

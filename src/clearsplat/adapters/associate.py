@@ -1,0 +1,580 @@
+"""The view association of an export, recovered from geometry and the input images.
+
+The filter needs each Gaussian's input view (``Scene.view_id``) and, for pixel-aligned
+models, its pixel (``Scene.pixel_id``). When an export's vertex order no longer says which
+view and pixel made each Gaussian, this module recovers them:
+
+- :func:`associate_ordered`: per-pixel exports written view after view in the model's
+  ``(view, row, col)`` order with an unknown number of vertices of each view cut (border
+  trims, per-view depth-percentile cuts, masks, opacity cuts) and centres moved off their
+  pixel's ray by sub-pixel offsets (Depth Anything 3's ``gs_ply``). The vertex sequence is cut
+  into one run per view by a dynamic programme over the run boundaries; each vertex's pixel is
+  the pixel its centre projects to in its view's camera.
+- :func:`associate_fused`: Gaussians that mix pixels of several views (AnySplat's and
+  WorldMirror's voxel fusion) or come from any trainer, in no useful order. From renders of
+  every input camera: a Gaussian whose colour agrees with one view's image only (a transient)
+  goes to that view; one that several views see agreeing (static content) to a view that
+  does not need it; ``pixel_id = -1``.
+- :func:`normalised_frame`: the frame Depth Anything 3 writes its Gaussians in when it is
+  given poses (camera 0 the identity, median camera distance 1), as the similarity back to the
+  cameras' frame.
+
+Every function takes NumPy arrays, returns an :class:`Association` and reports bad input as
+:class:`~clearsplat.errors.ClearsplatError` naming the field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..cameras import Camera
+from ..errors import ClearsplatError
+from ..render import prepare
+from ..scene import Gaussians, RenderSettings, Scene, sh_dc_to_rgb
+
+__all__ = ["Association", "Similarity", "associate_fused", "associate_ordered",
+           "normalised_frame"]
+
+#: Pixels a vertex's projection may lie off its pixel's centre, per axis, by default. Depth
+#: Anything 3 moves centres by up to half a pixel (its xy offset); one pixel leaves room for
+#: cameras that differ a little from the ones the model placed its Gaussians with (its own
+#: predicted poses, a model frame undone only approximately).
+MAX_OFFSET = 1.0
+#: Cost of a break in row-major order inside one view's run (a step back by more than a row),
+#: in units of the cost of one vertex outside its view's image.
+ORDER_WEIGHT = 2.0
+#: Cost of a stall inside one view's run (the same pixel as the previous vertex, or a little
+#: back), counted only with ``max_offset <= 0.5``: weak evidence, which tells apart cameras
+#: that see a view's pixels without either of the costs above (a camera behind the view's own
+#: sees them packed closer), but which a camera slightly off the model's also shows.
+STALL_WEIGHT = 0.1
+#: Step codes of :func:`_order_steps`.
+STALL, BREAK = 1, 2
+
+
+@dataclass(frozen=True, eq=False)
+class Association:
+    """Each Gaussian's input view and pixel, as recovered.
+
+    Attributes
+    ----------
+    view_id : (N,) int64
+        Input view of each Gaussian, in ``[0, V)``.
+    pixel_id : (N,) int64
+        ``row * width + col`` in that view's image, or -1 where there is none (fused
+        Gaussians; a vertex that does not project into its view's image).
+    ambiguous : (N,) bool
+        No view is clearly right: for :func:`associate_ordered` the vertex lies outside its
+        view's image or breaks its run's row-major order; for :func:`associate_fused` no view
+        sees it with an agreeing colour (hidden everywhere, or a colour no image shows).
+    source : str
+        ``"geometry"`` or ``"images"``: what the association was recovered from.
+    """
+
+    view_id: np.ndarray
+    pixel_id: np.ndarray
+    ambiguous: np.ndarray
+    source: str = "geometry"
+
+    def __len__(self) -> int:
+        return len(self.view_id)
+
+    def summary(self) -> str:
+        """One line: ``associated 123,456 Gaussians from geometry: 120,001 got a view, 3,455
+        ambiguous``."""
+        n, amb = len(self), int(np.count_nonzero(self.ambiguous))
+        return (f"associated {n:,} Gaussians from {self.source}: {n - amb:,} got a view, "
+                f"{amb:,} ambiguous")
+
+    def to_scene(self, gaussians: Gaussians, cameras, images=None, *,
+                 render_settings: RenderSettings | None = None) -> Scene:
+        """A validated :class:`~clearsplat.Scene` of ``gaussians`` with this association."""
+        if len(gaussians) != len(self):
+            raise ClearsplatError(f"{len(gaussians)} Gaussians for an association of "
+                                  f"{len(self)}", field="gaussians")
+        scene = Scene(gaussians, view_id=self.view_id, pixel_id=self.pixel_id,
+                      cameras=list(cameras), images=images,
+                      render_settings=render_settings or RenderSettings())
+        scene.validate()
+        return scene
+
+
+class Similarity(NamedTuple):
+    """``x -> scale * rotation @ x + translation``: a model frame to the cameras' frame.
+
+    Attributes
+    ----------
+    scale : float
+    rotation : (3, 3) float64
+    translation : (3,) float64
+    """
+
+    scale: float
+    rotation: np.ndarray
+    translation: np.ndarray
+
+    def apply(self, points) -> np.ndarray:
+        """Points (M, 3) mapped to the cameras' frame, (M, 3) float64."""
+        p = np.asarray(points, dtype=np.float64)
+        return self.scale * p @ self.rotation.T + self.translation
+
+    @classmethod
+    def identity(cls) -> Similarity:
+        return cls(1.0, np.eye(3), np.zeros(3))
+
+
+# ------------------------------------------------------------------------------------------------
+# input checks
+# ------------------------------------------------------------------------------------------------
+def _checked_means(means, field: str = "means") -> np.ndarray:
+    """(N, 3) float64, finite."""
+    try:
+        m = np.asarray(means, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ClearsplatError(f"cannot read as numbers ({e})", field=field) from None
+    if m.ndim != 2 or m.shape[1] != 3:
+        raise ClearsplatError(f"expected shape (N, 3), got {m.shape}", field=field)
+    bad = ~np.isfinite(m).all(axis=1)
+    if bad.any():
+        raise ClearsplatError(f"non-finite centre (first at vertex {int(np.argmax(bad))})",
+                              field=field)
+    return m
+
+
+def _checked_cameras(cameras) -> list:
+    cameras = list(cameras)
+    if not cameras:
+        raise ClearsplatError("no cameras", field="cameras")
+    for i, cam in enumerate(cameras):
+        if not isinstance(cam, Camera):
+            raise ClearsplatError(f"expected a Camera, got {type(cam).__name__}",
+                                  field=f"cameras[{i}]")
+    return cameras
+
+
+def _checked_views(views, num_cameras: int) -> np.ndarray:
+    """The camera indices that may appear, in file order: (S,) int64."""
+    if views is None:
+        return np.arange(num_cameras, dtype=np.int64)
+    v = np.asarray(list(views))
+    if v.ndim != 1 or len(v) == 0 or v.dtype.kind not in "iu":
+        raise ClearsplatError("expected a non-empty sequence of camera indices", field="views")
+    v = v.astype(np.int64)
+    if v.min() < 0 or v.max() >= num_cameras or len(np.unique(v)) != len(v):
+        raise ClearsplatError(f"expected distinct camera indices in 0..{num_cameras - 1}, got "
+                              f"{v.tolist()}", field="views")
+    return v
+
+
+def _checked_images(images, cameras) -> list:
+    if images is None:
+        raise ClearsplatError("the input images are needed", field="images")
+    images = list(images)
+    if len(images) != len(cameras):
+        raise ClearsplatError(f"{len(images)} images for {len(cameras)} cameras",
+                              field="images")
+    out = []
+    for i, (im, cam) in enumerate(zip(images, cameras)):
+        a = np.asarray(im, dtype=np.float32)
+        if a.shape != (cam.height, cam.width, 3):
+            raise ClearsplatError(f"image {i} has shape {a.shape}, its camera expects "
+                                  f"{(cam.height, cam.width, 3)}", field=f"images[{i}]")
+        if not np.isfinite(a).all():
+            raise ClearsplatError(f"image {i} has non-finite values", field=f"images[{i}]")
+        out.append(a)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# ordered exports
+# ------------------------------------------------------------------------------------------------
+def _projection(cam: Camera, means: np.ndarray, max_offset: float):
+    """Pixel row, col (M,) int64 of each centre and whether it lies in front and inside the
+    image (within ``max_offset - 0.5`` px of its border; such pixels are clipped in)."""
+    uv, z = cam.project(means)
+    tol = max(0.0, max_offset - 0.5)
+    ok = z > 0
+    x = np.where(ok, uv[:, 0], -np.inf)
+    y = np.where(ok, uv[:, 1], -np.inf)
+    ok &= (x >= -tol) & (x < cam.width + tol) & (y >= -tol) & (y < cam.height + tol)
+    col = np.clip(np.floor(np.where(ok, x, 0.0)), 0, cam.width - 1).astype(np.int64)
+    row = np.clip(np.floor(np.where(ok, y, 0.0)), 0, cam.height - 1).astype(np.int64)
+    return row, col, ok
+
+
+def _order_steps(row: np.ndarray, col: np.ndarray, ok: np.ndarray, width: int,
+                 max_offset: float) -> np.ndarray:
+    """(M,) uint8: how vertex ``n`` follows vertex ``n - 1`` in row-major order in one camera
+    (both inside its image; vertex 0 always 0).
+
+    0 forward; :data:`STALL` on the same pixel or back by up to a row (a run of one view never
+    does this in its own camera with offsets below half a pixel: it shows a camera that sees
+    the view's pixels closer together than its own does; not counted for larger offsets,
+    which can reorder neighbours); :data:`BREAK` back by more than a row and more than
+    ``max_offset`` offsets can explain (a new view starting over at the top of its image).
+    """
+    # A centre offset by less than m px from its pixel centre floors to a pixel that differs
+    # from its own by -ceil(m - 1/2) .. ceil(m + 1/2) - 1 per axis, d values apart; consecutive
+    # pixels of a row-major run step forward by at least 1. Stalls are told apart only where
+    # d = 0 (m <= 1/2); a break always needs more than a row back.
+    d = int(np.ceil(max_offset - 0.5) + np.ceil(max_offset + 0.5) - 1)
+    step = np.diff(row * width + col)
+    both = ok[1:] & ok[:-1]
+    out = np.zeros(len(row), dtype=np.uint8)
+    out[1:] = np.where(both & (step < 1 - d * (width + 1)), STALL, 0)
+    out[1:][both & (step < 1 - max(d, 1) * (width + 1))] = BREAK
+    return out
+
+
+def _segment(outside: np.ndarray, steps: np.ndarray, weights) -> tuple[np.ndarray, float]:
+    """Cut a sequence into consecutive runs, one per camera in order, at the least cost.
+
+    Vertex ``n`` in the run of camera ``s`` costs ``outside[s, n] + weights[steps[s, n]]``,
+    except that the step cost of a run's first vertex is free (a new view starts over at the
+    top of its image). Runs may be empty. A dynamic programme over the run ends with prefix
+    sums and running minima: O(S N) time, (S, N + 1) indices kept for the way back.
+
+    Parameters
+    ----------
+    outside : (S, N) bool or float
+        Cost of each vertex in each camera's run.
+    steps : (S, N) int
+        Step code of each vertex in each camera (indices into ``weights``).
+    weights : (K,) array_like of float, >= 0
+        Cost of each step code.
+
+    Returns
+    -------
+    bounds : (S + 1,) int64
+        Run ``s`` is ``[bounds[s], bounds[s + 1])``; ``bounds[0] = 0``, ``bounds[S] = N``.
+    cost : float
+        The least total cost.
+    """
+    s_count, n = outside.shape
+    weights = np.asarray(weights, dtype=np.float64)
+    idx = np.arange(n, dtype=np.int64)
+    prev = np.full(n + 1, np.inf)
+    prev[0] = 0.0
+    choice = np.empty((s_count, n + 1), dtype=np.int32 if n < 2**31 - 1 else np.int64)
+    for s in range(s_count):
+        o = np.concatenate([[0.0], np.cumsum(outside[s], dtype=np.float64)])
+        b = np.concatenate([[0.0], np.cumsum(weights[steps[s]])])
+        # Run [a, e) with a < e costs o[e] - o[a] + b[e] - b[a + 1]; the best start for each end
+        # is a running minimum over a < e (the latest start among equals).
+        h = prev[:n] - o[:n] - b[1:]
+        best = np.minimum.accumulate(h)
+        arg = np.maximum.accumulate(np.where(h == best, idx, 0))
+        run = np.full(n + 1, np.inf)
+        run[1:] = best + o[1:] + b[1:]
+        take = run < prev                              # ties: the run stays empty
+        choice[s] = np.arange(n + 1)
+        choice[s, 1:][take[1:]] = arg[take[1:]]
+        prev = np.where(take, run, prev)
+    bounds = np.empty(s_count + 1, dtype=np.int64)
+    bounds[s_count] = n
+    for s in range(s_count - 1, -1, -1):
+        bounds[s] = choice[s, bounds[s + 1]]
+    return bounds, float(prev[n])
+
+
+def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFFSET,
+                      order_weight: float = ORDER_WEIGHT, stall_weight: float = STALL_WEIGHT,
+                      min_seen: float = 0.5) -> Association:
+    """The view and pixel of each vertex of a per-pixel export written view after view.
+
+    The export holds one Gaussian per kept pixel, written in the model's ``(view, row, col)``
+    order, with an unknown number of each view's pixels cut (border trims, depth-percentile
+    cuts, masks, opacity cuts) and centres moved off their pixel's ray by sub-pixel offsets.
+
+    Every vertex is projected into every camera. In the run of camera ``v`` a vertex costs 1
+    when it is behind ``v`` or outside its image, ``order_weight`` when its row-major pixel
+    key in ``v`` steps back from the previous vertex's by more than ``max_offset`` offsets
+    explain (a break: the run of one view only moves forward), and ``stall_weight`` when it
+    stays on the previous pixel or steps back less (:func:`_order_steps`). The sequence is cut
+    into consecutive runs, one per camera of ``views`` in order (runs may be empty), at the
+    least total cost by a dynamic programme over the run boundaries (:func:`_segment`, O(N V)).
+    Where consecutive cameras are nearly identical (a video), the boundaries are the row
+    resets from the bottom of one view to the top of the next, which every such camera shows.
+    Each vertex's pixel is the one its centre projects to in its view's camera (floor).
+
+    What stays ambiguous: a view none of whose pixels survived leaves no run, and when views
+    are missing (an export of every k-th view) and ``views`` is not given, a camera close to a
+    written one can take its run: only stalls tell them apart, counted with ``max_offset <=
+    0.5`` when the export is in the cameras' exact frame; identical cameras cannot be told
+    apart at all (give ``views``).
+
+    Parameters
+    ----------
+    means : (N, 3) array_like
+        Vertex centres, in the frame of ``cameras`` (for an export in Depth Anything 3's
+        normalised frame, map them with :func:`normalised_frame` first).
+    cameras : sequence of Camera
+        The input cameras, in view-id order.
+    views : sequence of int, optional
+        The camera indices that may appear, in the order the export writes them (Depth
+        Anything 3's ``gs_views_interval``: ``range(0, V, interval)``). Default: all, in order.
+    max_offset : float
+        Largest distance, in pixels per axis, of a centre's projection from its pixel centre.
+    order_weight, stall_weight : float
+        Cost of a break and of a stall inside a run, relative to one vertex outside the image.
+    min_seen : float
+        Least share of the vertices that must project into their view's image; fewer means
+        the cameras do not fit the export (wrong frame, cameras or views).
+
+    Returns
+    -------
+    Association
+        ``source = "geometry"``; ``ambiguous`` where a vertex lies outside its view's image
+        (``pixel_id = -1``) or breaks its run's order.
+
+    Raises
+    ------
+    ClearsplatError
+        Bad ``means`` (shape, NaN), ``cameras``, ``views`` or options; cameras that see fewer
+        than ``min_seen`` of the vertices (``field="cameras"``).
+    """
+    means = _checked_means(means)
+    cameras = _checked_cameras(cameras)
+    views = _checked_views(views, len(cameras))
+    for name, value in (("max_offset", max_offset), ("order_weight", order_weight),
+                        ("stall_weight", stall_weight)):
+        if not (np.isfinite(value) and value >= 0) or (name == "max_offset" and value == 0):
+            raise ClearsplatError(f"expected a number > 0, got {value!r}", field=name)
+    n = len(means)
+    if n == 0:
+        e = np.empty(0, dtype=np.int64)
+        return Association(e, e.copy(), np.empty(0, dtype=bool))
+    outside = np.empty((len(views), n), dtype=bool)
+    steps = np.empty((len(views), n), dtype=np.uint8)
+    for s, v in enumerate(views):
+        row, col, ok = _projection(cameras[v], means, max_offset)
+        outside[s] = ~ok
+        steps[s] = _order_steps(row, col, ok, cameras[v].width, max_offset)
+    bounds, _ = _segment(outside, steps, (0.0, stall_weight, order_weight))
+    seg = np.repeat(np.arange(len(views)), np.diff(bounds))
+    pick = np.arange(n)
+    out, brk = outside[seg, pick], steps[seg, pick] == BREAK
+    brk[bounds[:-1][bounds[:-1] < n]] = False           # a run's first vertex starts over
+    seen = 1.0 - out.mean()
+    if seen < min_seen:
+        raise ClearsplatError(f"only {100 * seen:.1f} % of the vertices project into their "
+                              "view's image: the cameras do not fit the export (another frame, "
+                              "other cameras or views?)", field="cameras")
+    view_id = views[seg]
+    pixel_id = np.full(n, -1, dtype=np.int64)
+    for s, v in enumerate(views):
+        lo, hi = bounds[s], bounds[s + 1]
+        if hi > lo:
+            row, col, ok = _projection(cameras[v], means[lo:hi], max_offset)
+            pixel_id[lo:hi] = np.where(ok, row * cameras[v].width + col, -1)
+    return Association(view_id, pixel_id, out | brk, "geometry")
+
+
+# ------------------------------------------------------------------------------------------------
+# fused Gaussians
+# ------------------------------------------------------------------------------------------------
+def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
+                    agree_ratio: float = 0.7, min_weight: float = 0.05,
+                    settings: RenderSettings | None = None,
+                    num_threads: int | None = None) -> Association:
+    """The view of each Gaussian from how it reproduces the input images.
+
+    For Gaussians that mix pixels of several views (voxel fusion) or that come with no order
+    information at all. Every input camera is rendered, one at a time, with the blending weight
+    ``alpha * T`` of every (pixel, Gaussian) pair; each pair's agreement ``exp(-e^2 / (2
+    colour_sigma^2))`` says how well the Gaussian's colour (its SH DC term) matches that view's
+    input image at the pixel (``e`` the RMS difference over the channels). Per Gaussian and view:
+    ``W`` the summed weight (how large the view sees it), ``A`` the agreement-weighted sum and
+    ``r = A / W`` the share of it that agrees (:func:`_view_sums`).
+
+    The views that *see it agreeing* have ``W >= min_weight`` and ``r`` at least
+    ``agree_ratio`` times the ``r`` of its best view, the one with the largest ``A * r``.
+
+    - One such view: the Gaussian is what that view alone saw (a transient agrees with the
+      image of the view that saw it only: from the others it covers what their images show
+      behind it), or content that only one view sees. It goes to that view, as a per-pixel
+      model would have it.
+    - Several: multi-view content (static). It goes to a view that does not need it: one that
+      has it outside its image (or behind it), else the one that sees it least (the smallest
+      ``W``). So no view's exclusion render (the filter's render without that view's own
+      Gaussians) loses static content it sees, as with per-pixel Gaussians, where the other
+      views' copies stay. A view that has it outside its image comes first because the
+      static content behind a view's own transient is what that view sees least of all (the
+      transient hides it): owned by that view, it would leave a hole where the filter looks
+      for what the transient hides.
+    - None (no view sees it agreeing with a summed weight of ``min_weight``): its best view;
+      where no colour agrees anywhere, the view that sees it largest (where the filter can find
+      it as a region that disagrees with the image); and if no camera renders it at all, the
+      view whose image centre its centre projects nearest to (the one facing it most where
+      none has it in front). Marked ambiguous.
+
+    ``pixel_id`` is -1 for every Gaussian: a fused Gaussian stands for pixels of several
+    views, and one pixel of one view would misstate it. The filter then maps each image
+    region to Gaussians through the rasterizer (compositing the view's own Gaussians from its
+    camera; :func:`clearsplat.filter.association.region_gaussians`).
+
+    Parameters
+    ----------
+    gaussians : Gaussians or Scene
+    cameras : sequence of Camera
+        The input cameras, in the frame of the Gaussians.
+    images : sequence of (H, W, 3) array_like
+        The input images, RGB in [0, 1], one per camera, of its size.
+    colour_sigma : float
+        Colour difference (RGB in [0, 1]) at which agreement falls to ``exp(-1/2)``.
+    agree_ratio : float
+        Least share ``r`` of a view, relative to the best view's, for that view to count as
+        seeing the Gaussian agreeing, in (0, 1].
+    min_weight : float
+        Least blending weight, summed over one view's pixels, of a Gaussian that view sees.
+    settings : RenderSettings, optional
+        How to rasterize; by default the scene's, or classic 3DGS for Gaussians.
+    num_threads : int, optional
+        Render threads (all cores by default).
+
+    Returns
+    -------
+    Association
+        ``source = "images"``, ``pixel_id = -1``.
+    """
+    if isinstance(gaussians, Scene):
+        settings = settings or gaussians.render_settings
+        gaussians = gaussians.gaussians
+    if not isinstance(gaussians, Gaussians):
+        raise ClearsplatError(f"expected Gaussians or a Scene, got {type(gaussians).__name__}",
+                              field="gaussians")
+    gaussians.validate()
+    cameras = _checked_cameras(cameras)
+    images = _checked_images(images, cameras)
+    for name, value in (("colour_sigma", colour_sigma), ("min_weight", min_weight),
+                        ("agree_ratio", agree_ratio)):
+        if not (np.isfinite(value) and value > 0) or (name == "agree_ratio" and value > 1):
+            raise ClearsplatError(f"expected a positive number{' <= 1' * (name == 'agree_ratio')}"
+                                  f", got {value!r}", field=name)
+    n = len(gaussians)
+    total, agreeing = _view_sums(gaussians, cameras, images, colour_sigma=colour_sigma,
+                                 settings=settings, num_threads=num_threads)
+    view_id, multi, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=agree_ratio,
+                                                      min_weight=min_weight)
+    means = gaussians.means.astype(np.float64)
+    if multi.any():
+        view_id[multi] = _unneeded_view(means[multi], cameras, total[multi])
+    if unseen.any():
+        view_id[unseen] = _facing_view(means[unseen], cameras)
+    return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
+
+
+#: Largest summed weight held (float16).
+_WEIGHT_CAP = 65504.0
+
+
+def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, settings,
+               num_threads) -> tuple[np.ndarray, np.ndarray]:
+    """Per Gaussian and view, rendering one camera at a time: ``W``, the summed blending
+    weight, and ``A``, the agreement-weighted sum, each (N, V) float16 (capped at 65504; half
+    precision keeps small sums' relative precision): 4 bytes per Gaussian and view."""
+    n = len(gaussians)
+    colour = np.clip(sh_dc_to_rgb(gaussians.sh[:, 0]), 0.0, 1.0)
+    total = np.zeros((n, len(cameras)), dtype=np.float16)
+    agreeing = np.zeros((n, len(cameras)), dtype=np.float16)
+    for v, (cam, image) in enumerate(zip(cameras, images)):
+        view = prepare(gaussians, cam, num_threads=num_threads, settings=settings)
+        c = view.contributions(np.ones((cam.height, cam.width), dtype=bool))
+        diff = colour[c.gaussian] - image.reshape(-1, 3)[c.pixel]
+        agree = np.exp(np.einsum("ij,ij->i", diff, diff) / (-6.0 * colour_sigma ** 2))
+        total[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight, minlength=n),
+                                 _WEIGHT_CAP)
+        agreeing[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight * agree,
+                                                minlength=n), _WEIGHT_CAP)
+    return total, agreeing
+
+
+def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float,
+                  min_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The view of each Gaussian from ``_view_sums``' ``W`` and ``A`` (see
+    :func:`associate_fused`).
+
+    Returns
+    -------
+    view_id : (N,) int64
+        The best view (the largest ``A * r``; where no colour agrees, the largest ``W``).
+    multi : (N,) bool
+        Several views see it agreeing: its view is to be one that does not need it.
+    ambiguous : (N,) bool
+        No view sees it agreeing.
+    unseen : (N,) bool
+        No camera renders it at all: its view is to come from geometry.
+    """
+    n = total.shape[0]
+    w = total.astype(np.float64)
+    a = np.minimum(agreeing.astype(np.float64), w)
+    r = a / np.maximum(w, 1e-30)
+    best = np.argmax(a * r, axis=1)
+    r_best = r[np.arange(n), best]
+    ok = (w >= min_weight) & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
+    count = ok.sum(axis=1)
+    view_id = np.where(r_best > 0, best, np.argmax(w, axis=1)).astype(np.int64)
+    return view_id, count >= 2, count == 0, w.max(axis=1, initial=0.0) <= 0
+
+
+def _unneeded_view(means: np.ndarray, cameras, total: np.ndarray) -> np.ndarray:
+    """(M,) int64: per centre, a camera that does not need it, given its summed weights ``W``
+    (M, V): of the cameras that have it outside their image (or behind them), the one with the
+    least weight; where every camera has it inside, the one that sees it least."""
+    w = total.astype(np.float64)
+    pick = np.argmin(w, axis=1)
+    least = np.full(len(means), np.inf)
+    for v, cam in enumerate(cameras):
+        outside = ~_projection(cam, means, 0.5)[2]
+        better = outside & (w[:, v] < least)
+        pick[better] = v
+        least[better] = w[better, v]
+    return pick.astype(np.int64)
+
+
+def _facing_view(means: np.ndarray, cameras) -> np.ndarray:
+    """(M,) int64: per centre, the camera whose image centre it projects nearest to (in units
+    of the half image size); where no camera has it in front, the one facing it most."""
+    near = np.full((len(cameras), len(means)), np.inf)
+    facing = np.empty((len(cameras), len(means)))
+    for v, cam in enumerate(cameras):
+        pc = cam.to_camera(means)
+        front = pc[:, 2] > 0
+        z = np.where(front, pc[:, 2], 1.0)
+        dx = (cam.fx * pc[:, 0] / z + cam.cx - cam.width / 2) / (cam.width / 2)
+        dy = (cam.fy * pc[:, 1] / z + cam.cy - cam.height / 2) / (cam.height / 2)
+        near[v] = np.where(front, np.maximum(np.abs(dx), np.abs(dy)), np.inf)
+        facing[v] = pc[:, 2] / np.maximum(np.linalg.norm(pc, axis=1), 1e-30)
+    best = np.argmin(near, axis=0)
+    none = ~np.isfinite(near.min(axis=0))
+    best[none] = np.argmax(facing[:, none], axis=0)
+    return best.astype(np.int64)
+
+
+# ------------------------------------------------------------------------------------------------
+# model frames
+# ------------------------------------------------------------------------------------------------
+def normalised_frame(cameras) -> Similarity:
+    """Depth Anything 3's normalisation of given poses, as the map back to the cameras' frame.
+
+    With input poses, Depth Anything 3 conditions on (and writes its Gaussians in) a frame where
+    camera 0 is the identity and camera centres are divided by the (lower) median of their
+    distances from camera 0, at least 0.1 (``DepthAnything3._normalize_extrinsics``). The model
+    places its Gaussians with its own predicted poses, rescaled to that frame by an Umeyama
+    scale, so the frame holds only approximately: associate with a ``max_offset`` of a pixel
+    or more.
+
+    Returns
+    -------
+    Similarity
+        ``x_world = m C_0 x + t_0``: ``C_0``, ``t_0`` camera 0's rotation and centre, ``m`` the
+        median distance.
+    """
+    cameras = _checked_cameras(cameras)
+    c0 = cameras[0].camera_to_world
+    dists = np.sort([np.linalg.norm(c.position - c0[:3, 3]) for c in cameras])
+    m = max(float(dists[(len(dists) - 1) // 2]), 0.1)
+    return Similarity(m, c0[:3, :3].copy(), c0[:3, 3].copy())

@@ -1,0 +1,408 @@
+"""The association recovered from geometry and images (clearsplat.adapters.associate).
+
+Exports are made from the stand-in per-pixel prediction by the generators of
+benchmarks/association_quality.py: Depth Anything 3's ``gs_ply`` (border trim, per-view depth
+percentile cut, sub-pixel offsets, (view, row, col) order) and AnySplat's voxel fusion.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import itertools
+import os
+
+import numpy as np
+import pytest
+
+from clearsplat import Camera, ClearsplatError
+from clearsplat.adapters import associate as assoc
+from clearsplat.adapters.associate import (
+    Association,
+    associate_fused,
+    associate_ordered,
+    normalised_frame,
+)
+from clearsplat.cameras import look_at
+from clearsplat.synth import distractor_truth, make_world, reconstruct
+
+BENCHMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                          "benchmarks")
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location(
+        "association_quality", os.path.join(BENCHMARKS, "association_quality.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+AQ = _bench()
+
+
+@pytest.fixture(scope="module", params=["street", "object"])
+def prediction(request):
+    world = make_world(request.param, num_views=8, height=96, width=160, seed=3)
+    return world, reconstruct(world.cameras, world.images, world.depths, seed=3)
+
+
+def _right(a: Association, view, pixel, width):
+    """Shares of vertices with the right view, and with it a pixel within 1 px per axis."""
+    return (float(np.mean(a.view_id == view)),
+            float(np.mean(AQ.pixel_match(a.view_id, a.pixel_id, view, pixel, width))))
+
+
+# ------------------------------------------------------------------------------------------------
+# ordered exports
+# ------------------------------------------------------------------------------------------------
+def test_da3_style_export_gets_its_views_and_pixels(prediction):
+    world, scene = prediction
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=0)
+    assert 0.5 * len(scene) < len(export) < 0.95 * len(scene)      # trims and cuts happened
+    a = associate_ordered(export.means, world.cameras)
+    right_view, right_pixel = _right(a, view, pixel, world.width)
+    assert right_view >= 0.99 and right_pixel >= 0.99, (right_view, right_pixel)
+    assert a.source == "geometry" and a.ambiguous.mean() < 0.01
+    a.to_scene(export, world.cameras, world.images)                  # validates
+
+
+@pytest.mark.parametrize("family", ["street", "object"])
+def test_video_like_capture_is_cut_at_the_row_resets(family):
+    # Consecutive cameras a few millimetres and 0.15 degrees apart: every camera sees every
+    # view's vertices, and only the reset from one view's bottom row to the next view's top
+    # row tells the runs apart.
+    scene = AQ.video_capture(family, num_views=8, height=64, width=112, seed=1)
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=1)
+    a = associate_ordered(export.means, scene.cameras)
+    right_view, right_pixel = _right(a, view, pixel, 112)
+    assert right_view >= 0.99 and right_pixel >= 0.99, (right_view, right_pixel)
+
+
+def test_identical_cameras_still_split_at_the_resets():
+    scene = AQ.video_capture("street", num_views=5, height=64, width=112, seed=2, step=0.0,
+                             turn_deg=0.0)
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=2)
+    a = associate_ordered(export.means, scene.cameras)
+    assert _right(a, view, pixel, 112) == (1.0, 1.0)
+
+
+def test_every_kth_view_with_the_views_given(prediction):
+    world, scene = prediction
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=4, interval=3)
+    assert set(np.unique(view)) == {0, 3, 6}
+    a = associate_ordered(export.means, world.cameras, views=range(0, 8, 3))
+    right_view, right_pixel = _right(a, view, pixel, world.width)
+    assert right_view >= 0.99 and right_pixel >= 0.99, (right_view, right_pixel)
+
+
+def test_every_kth_view_without_the_views_told_apart_by_stalls(prediction):
+    # Views 1, 2, 4, 5, 7 are absent and not excluded: a camera close to a written one sees its
+    # vertices in order; with offsets below half a pixel only the stalls (vertices packed
+    # closer than a run of its own) tell the written camera apart.
+    world, scene = prediction
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=4, interval=3)
+    a = associate_ordered(export.means, world.cameras, max_offset=0.5)
+    right_view, right_pixel = _right(a, view, pixel, world.width)
+    assert right_view >= 0.99 and right_pixel >= 0.99, (right_view, right_pixel)
+
+
+def test_offsets_up_to_a_pixel(prediction):
+    world, scene = prediction
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=5, max_offset=1.0,
+                                                 depth_error=0.05)
+    a = associate_ordered(export.means, world.cameras)               # max_offset 1 px
+    assert _right(a, view, pixel, world.width)[1] >= 0.99
+
+
+def test_order_alone_decides_where_geometry_cannot():
+    # Two views of one camera, each a full row-major grid on a plane: every vertex projects
+    # inside both cameras, so only the reset between the views places the boundary.
+    K = np.array([[20.0, 0, 8], [0, 20.0, 6], [0, 0, 1]])
+    cam = Camera(K=K, camera_to_world=np.eye(4), width=16, height=12)
+    grid = cam.unproject(np.full((12, 16), 2.0)).reshape(-1, 3)
+    keep = np.random.default_rng(0).random(2 * len(grid)) < 0.8
+    means = np.concatenate([grid, grid])[keep]
+    a = associate_ordered(means, [cam, cam])
+    truth = np.repeat([0, 1], len(grid))[keep]
+    assert np.array_equal(a.view_id, truth)
+    assert np.array_equal(a.pixel_id, np.tile(np.arange(len(grid)), 2)[keep])
+
+
+def test_normalised_frame_undoes_depth_anything_normalisation():
+    world = make_world("object", num_views=5, height=64, width=112, seed=0)
+    cams = world.cameras
+    # The normalisation as DepthAnything3._normalize_extrinsics computes it.
+    w2c = np.stack([c.world_to_camera for c in cams])
+    ex = w2c @ cams[0].camera_to_world
+    c2w = np.linalg.inv(ex)
+    median = max(np.sort(np.linalg.norm(c2w[:, :3, 3], axis=1))[(len(cams) - 1) // 2], 0.1)
+    ex[:, :3, 3] /= median
+    norm_c2w = np.linalg.inv(ex)
+    frame = normalised_frame(cams)
+    assert np.allclose(frame.apply(norm_c2w[:, :3, 3]), [c.position for c in cams], atol=1e-9)
+    for nc, c in zip(norm_c2w, cams):
+        assert np.allclose(frame.rotation @ nc[:3, :3], c.camera_to_world[:3, :3], atol=1e-9)
+    # An export in the normalised frame is associated once mapped back.
+    scene = reconstruct(cams, world.images, world.depths, seed=0)
+    export, view, pixel, _ = AQ.da3_style_export(scene, seed=0)
+    normalised = (export.means - frame.translation) @ frame.rotation / frame.scale
+    a = associate_ordered(frame.apply(normalised), cams)
+    assert _right(a, view, pixel, world.width)[1] >= 0.99
+
+
+def _brute_segment(outside, steps, weights):
+    s_count, n = outside.shape
+    best = np.inf
+    for cut in itertools.combinations_with_replacement(range(n + 1), s_count - 1):
+        bounds = (0, *cut, n)
+        cost = 0.0
+        for s in range(s_count):
+            for k in range(bounds[s], bounds[s + 1]):
+                cost += outside[s, k] + (weights[steps[s, k]] if k > bounds[s] else 0.0)
+        best = min(best, cost)
+    return best
+
+
+def _cost(bounds, outside, steps, weights):
+    return sum(outside[s, k] + (weights[steps[s, k]] if k > bounds[s] else 0.0)
+               for s in range(outside.shape[0]) for k in range(bounds[s], bounds[s + 1]))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_segmentation_matches_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    s_count, n = int(rng.integers(1, 5)), int(rng.integers(0, 9))
+    outside = rng.random((s_count, n)) < 0.3
+    steps = rng.integers(0, 3, (s_count, n)).astype(np.uint8)
+    weights = (0.0, float(rng.uniform(0, 0.5)), float(rng.uniform(0.5, 3)))
+    bounds, cost = assoc._segment(outside, steps, weights)
+    assert bounds[0] == 0 and bounds[-1] == n and np.all(np.diff(bounds) >= 0)
+    assert cost == pytest.approx(_brute_segment(outside, steps, weights))
+    assert _cost(bounds, outside, steps, weights) == pytest.approx(cost)
+
+
+@pytest.mark.parametrize("max_offset", [0.5, 1.0, 1.7])
+def test_order_steps_match_a_loop(max_offset):
+    rng = np.random.default_rng(7)
+    width = 9
+    row, col = rng.integers(0, 6, 300), rng.integers(0, width, 300)
+    ok = rng.random(300) < 0.9
+    got = assoc._order_steps(row, col, ok, width, max_offset)
+    # Per axis a floored centre lies within ceil(m - 1/2) below and ceil(m + 1/2) - 1 above
+    # its pixel: d values apart.
+    d = int(np.ceil(max_offset - 0.5) + np.ceil(max_offset + 0.5) - 1)
+    for k in range(300):
+        step = (row[k] - row[k - 1]) * width + col[k] - col[k - 1] if k else 0
+        if k == 0 or not (ok[k] and ok[k - 1]):
+            want = 0
+        elif step < 1 - max(d, 1) * (width + 1):
+            want = assoc.BREAK
+        elif step < 1 - d * (width + 1):
+            want = assoc.STALL
+        else:
+            want = 0
+        assert got[k] == want, k
+
+
+# ------------------------------------------------------------------------------------------------
+# fused Gaussians
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("family", ["object", "street"])
+def test_fused_distractor_voxels_get_their_distractors_view(family):
+    right = total = 0
+    for seed in range(3):
+        world = make_world(family, num_views=6, height=64, width=112, seed=seed)
+        scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
+        truth = distractor_truth(scene, world)
+        fused, voxel, _ = AQ.voxel_fused_export(scene, seed=seed)
+        k = len(fused)
+        distractor = np.bincount(voxel, truth.astype(float), minlength=k) / np.bincount(voxel)
+        distractor = distractor > 0.5
+        its_view = AQ.majority_view(voxel, scene.view_id, 6, weights=truth.astype(float))
+        a = associate_fused(fused, world.cameras, world.images)
+        assert a.source == "images" and np.all(a.pixel_id == -1)
+        assert a.view_id.min() >= 0 and a.view_id.max() < 6
+        right += int(np.sum(a.view_id[distractor] == its_view[distractor]))
+        total += int(distractor.sum())
+    assert total > 100
+    assert right / total >= 0.75, right / total
+
+
+def test_voxel_fusion_follows_anysplat():
+    world = make_world("object", num_views=3, height=32, width=48, seed=0)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    fused, voxel, size = AQ.voxel_fused_export(scene, seed=0)
+    assert abs(len(scene) / len(fused) / 5.0 - 1) < 0.02
+    keys = np.round(scene.gaussians.means.astype(np.float64) / size).astype(np.int64)
+    # Voxels in torch.unique's order: lexicographic in the integer key; each is the weighted
+    # mean of its pixels, so it lies within the voxel's bounds.
+    first = np.stack([keys[voxel == k][0] for k in range(len(fused))])
+    assert all(tuple(a) < tuple(b) for a, b in itertools.pairwise(first))
+    for k in range(0, len(fused), 97):
+        assert np.all(keys[voxel == k] == first[k])
+        lo, hi = (first[k] - 0.5) * size, (first[k] + 0.5) * size
+        assert np.all(fused.means[k] >= lo - 1e-5) and np.all(fused.means[k] <= hi + 1e-5)
+
+
+def _slow_choose(total, agreeing, agree_ratio, min_weight):
+    views, multi, ambiguous, unseen = [], [], [], []
+    for w, a in zip(total.astype(float), agreeing.astype(float)):
+        a = np.minimum(a, w)
+        r = [a_v / w_v if w_v > 0 else 0.0 for a_v, w_v in zip(a, w)]
+        scores = [a_v * r_v for a_v, r_v in zip(a, r)]
+        best = scores.index(max(scores))
+        agree = [v for v in range(len(w))
+                 if w[v] >= min_weight and r[best] > 0 and r[v] >= agree_ratio * r[best]]
+        views.append(best if r[best] > 0 else int(np.argmax(w)))
+        multi.append(len(agree) >= 2)
+        ambiguous.append(len(agree) == 0)
+        unseen.append(max(w) <= 0)
+    return views, multi, ambiguous, unseen
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_view_choice_matches_a_loop(seed):
+    rng = np.random.default_rng(seed)
+    n, v = 200, 5
+    total = (rng.random((n, v)) * (rng.random((n, v)) < 0.6) * 3).astype(np.float16)
+    agreeing = (total * rng.random((n, v)) ** 3).astype(np.float16)
+    total[:5] = 0
+    got = assoc._choose_views(total, agreeing, agree_ratio=0.7, min_weight=0.05)
+    want = _slow_choose(total, agreeing, 0.7, 0.05)
+    for g, w in zip(got, want):
+        assert np.array_equal(g, np.asarray(w))
+    assert got[3][:5].all()
+
+
+def test_static_content_goes_to_a_view_that_has_it_outside():
+    K = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
+    cams = [Camera(K=K, camera_to_world=look_at((x, -4.0, 0.0), (x, 0.0, 0.0)), width=32,
+                   height=24) for x in (0.0, 0.3, 6.0)]
+    means = np.array([[0.1, 0.0, 0.0], [0.2, 0.0, 0.1]])
+    total = np.array([[2.0, 3.0, 0.0], [1.0, 0.5, 0.0]], dtype=np.float16)
+    # Camera 2 looks elsewhere: it needs neither point.
+    assert np.array_equal(assoc._unneeded_view(means, cams, total), [2, 2])
+    # Inside every camera: the one that sees it least.
+    assert np.array_equal(assoc._unneeded_view(means, cams[:2], total[:, :2]), [0, 1])
+
+
+def test_gaussians_no_camera_renders_face_a_camera():
+    world = make_world("object", num_views=4, height=32, width=48, seed=0)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0)
+    g = scene.gaussians.subset(np.arange(0, len(scene), 7))
+    cam = world.cameras[2]
+    behind = cam.position - 30.0 * cam.camera_to_world[:3, 2]      # far behind every camera
+    g.means[:3] = behind + np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]])
+    local = [c.to_camera(g.means[:3]) for c in world.cameras]
+    assert all((p[:, 2] < 0).all() for p in local)
+    a = associate_fused(g, world.cameras, world.images)
+    assert a.ambiguous[:3].all() and not a.ambiguous.all()
+    # Behind every camera: the one whose optical axis points most towards it.
+    cosine = np.stack([p[:, 2] / np.linalg.norm(p, axis=1) for p in local])
+    assert np.array_equal(a.view_id[:3], np.argmax(cosine, axis=0))
+    # In front of some: the one it projects nearest the image centre of.
+    h = np.array([[0.05, 0.02, 0.3]])
+    half = np.array([world.width / 2, world.height / 2])
+    want = np.argmin([np.max(np.abs(c.project(h)[0][0] - half) / half)
+                      if c.to_camera(h)[0, 2] > 0 else np.inf for c in world.cameras])
+    assert assoc._facing_view(h, world.cameras)[0] == want
+
+
+# ------------------------------------------------------------------------------------------------
+# the association itself and bad input
+# ------------------------------------------------------------------------------------------------
+def test_summary_counts():
+    a = Association(np.zeros(123_456, np.int64), np.full(123_456, -1, np.int64),
+                    np.arange(123_456) < 3_455)
+    assert a.summary() == ("associated 123,456 Gaussians from geometry: 120,001 got a view, "
+                           "3,455 ambiguous")
+
+
+def test_empty_export():
+    world = make_world("object", num_views=2, height=32, width=48, seed=0)
+    a = associate_ordered(np.zeros((0, 3)), world.cameras)
+    assert len(a) == 0 and a.summary().startswith("associated 0 Gaussians")
+
+
+@pytest.fixture(scope="module")
+def small():
+    world = make_world("object", num_views=3, height=32, width=48, seed=1)
+    return world, reconstruct(world.cameras, world.images, world.depths, seed=1)
+
+
+def test_nan_means_are_refused(small):
+    world, scene = small
+    means = scene.gaussians.means.copy()
+    means[5, 1] = np.nan
+    with pytest.raises(ClearsplatError) as e:
+        associate_ordered(means, world.cameras)
+    assert e.value.field == "means" and "vertex 5" in str(e.value)
+    g = scene.gaussians.subset(np.arange(len(scene)))
+    g.means[5, 1] = np.nan
+    with pytest.raises(ClearsplatError) as e:
+        associate_fused(g, world.cameras, world.images)
+    assert e.value.field == "means"
+
+
+def test_cameras_that_see_none_of_the_vertices_are_refused(small):
+    world, scene = small
+    away = [Camera(K=c.K, camera_to_world=c.camera_to_world @ np.diag([-1.0, 1.0, -1.0, 1.0]),
+                   width=c.width, height=c.height) for c in world.cameras]   # turned around
+    with pytest.raises(ClearsplatError) as e:
+        associate_ordered(scene.gaussians.means, away)
+    assert e.value.field == "cameras"
+
+
+def test_mismatched_images_are_refused(small):
+    world, scene = small
+    images = list(world.images)
+    images[1] = images[1][:-1]
+    with pytest.raises(ClearsplatError) as e:
+        associate_fused(scene.gaussians, world.cameras, images)
+    assert e.value.field == "images[1]"
+    with pytest.raises(ClearsplatError) as e:
+        associate_fused(scene.gaussians, world.cameras, world.images[:2])
+    assert e.value.field == "images"
+    with pytest.raises(ClearsplatError) as e:
+        associate_fused(scene.gaussians, world.cameras, None)
+    assert e.value.field == "images"
+
+
+@pytest.mark.parametrize("views, message", [([0, 5], "distinct camera indices"),
+                                            ([1, 1], "distinct camera indices"),
+                                            ([], "non-empty"), ([0.5], "non-empty")])
+def test_bad_views_are_refused(small, views, message):
+    world, scene = small
+    with pytest.raises(ClearsplatError, match=message) as e:
+        associate_ordered(scene.gaussians.means, world.cameras, views=views)
+    assert e.value.field == "views"
+
+
+@pytest.mark.parametrize("kwargs, field", [({"max_offset": 0}, "max_offset"),
+                                           ({"order_weight": -1.0}, "order_weight"),
+                                           ({"stall_weight": np.nan}, "stall_weight")])
+def test_bad_options_are_refused(small, kwargs, field):
+    world, scene = small
+    with pytest.raises(ClearsplatError) as e:
+        associate_ordered(scene.gaussians.means, world.cameras, **kwargs)
+    assert e.value.field == field
+
+
+def test_bad_shapes_and_cameras_are_refused(small):
+    world, scene = small
+    with pytest.raises(ClearsplatError) as e:
+        associate_ordered(scene.gaussians.means[:, :2], world.cameras)
+    assert e.value.field == "means"
+    with pytest.raises(ClearsplatError) as e:
+        associate_ordered(scene.gaussians.means, [])
+    assert e.value.field == "cameras"
+    with pytest.raises(ClearsplatError) as e:
+        associate_ordered(scene.gaussians.means, [world.cameras[0], "camera"])
+    assert e.value.field == "cameras[1]"
+    with pytest.raises(ClearsplatError) as e:
+        associate_fused(scene.gaussians, world.cameras, world.images, agree_ratio=1.5)
+    assert e.value.field == "agree_ratio"
+    with pytest.raises(ClearsplatError) as e:
+        Association(scene.view_id[:3], scene.pixel_id[:3], np.zeros(3, bool)).to_scene(
+            scene.gaussians, world.cameras)
+    assert e.value.field == "gaussians"
