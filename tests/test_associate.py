@@ -2,7 +2,9 @@
 
 Exports are made from the stand-in per-pixel prediction by the generators of
 benchmarks/association_quality.py: Depth Anything 3's ``gs_ply`` (border trim, per-view depth
-percentile cut, sub-pixel offsets, (view, row, col) order) and AnySplat's voxel fusion.
+percentile cut, sub-pixel offsets, (view, row, col) order) and AnySplat's voxel fusion; and,
+for the pixel-centred association, the prediction itself (centres on their pixels' rays) in a
+random order.
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ import pytest
 from clearsplat import Camera, ClearsplatError
 from clearsplat.adapters import associate as assoc
 from clearsplat.adapters.associate import (
+    CENTRE_RATIO,
+    CENTRE_TOLERANCE,
     Association,
+    associate_centred,
     associate_fused,
     associate_ordered,
     normalised_frame,
@@ -205,6 +210,115 @@ def test_order_steps_match_a_loop(max_offset):
 
 
 # ------------------------------------------------------------------------------------------------
+# pixel-centred exports in no order
+# ------------------------------------------------------------------------------------------------
+def _shuffled(scene, share=0.4, seed=0):
+    """A random subset of a per-pixel prediction in random order (a pruned or subsampled
+    export): centres as float32, the true view and pixel of each."""
+    rng = np.random.default_rng(seed)
+    idx = rng.permutation(len(scene))[:int(share * len(scene))]
+    return scene.gaussians.means[idx], scene.view_id[idx], scene.pixel_id[idx]
+
+
+def test_centred_export_in_no_order_gets_its_views_and_pixels(prediction):
+    world, scene = prediction
+    means, view, pixel = _shuffled(scene)
+    a = associate_centred(means, world.cameras)
+    right = a.view_id == view
+    assert right.mean() >= 0.99 and (right & (a.pixel_id == pixel)).mean() >= 0.99
+    assert a.source == "geometry" and a.ambiguous.mean() < 0.01
+    assert right[~a.ambiguous].all()                   # the unambiguous ones are all right
+    a.to_scene(scene.gaussians.subset(np.arange(len(means))), world.cameras)   # validates
+
+
+@pytest.mark.parametrize("family", ["street", "object"])
+def test_centred_video_like_capture(family):
+    # Consecutive cameras a few millimetres and 0.15 degrees apart put a vertex near a pixel
+    # centre only where their shift is close to a whole number of pixels.
+    scene = AQ.video_capture(family, num_views=8, height=64, width=112, seed=1)
+    means, view, pixel = _shuffled(scene, seed=1)
+    a = associate_centred(means, scene.cameras)
+    right = (a.view_id == view) & (a.pixel_id == pixel)
+    assert right.mean() >= 0.99 and a.ambiguous.mean() < 0.01, (right.mean(), a.ambiguous.mean())
+
+
+def test_identical_cameras_are_ambiguous():
+    scene = AQ.video_capture("street", num_views=3, height=32, width=48, seed=2, step=0.0,
+                             turn_deg=0.0)
+    a = associate_centred(scene.gaussians.means, scene.cameras)
+    assert a.ambiguous.all() and (a.view_id == 0).all()
+
+
+def test_centres_off_their_pixel_centres_are_ambiguous(prediction):
+    # Moved across the image by 0.1 to 0.4 px per axis (centres computed at a lower
+    # precision): no camera puts them within the tolerance of a pixel centre.
+    world, scene = prediction
+    means, view, _ = _shuffled(scene, share=0.1)
+    rng = np.random.default_rng(3)
+    shift = rng.uniform(0.1, 0.4, (len(means), 2)) * rng.choice([-1, 1], (len(means), 2))
+    moved = np.empty(means.shape)
+    for v, cam in enumerate(world.cameras):
+        sel = view == v
+        pc = cam.to_camera(means[sel])
+        pc[:, 0] += shift[sel, 0] * pc[:, 2] / cam.fx
+        pc[:, 1] += shift[sel, 1] * pc[:, 2] / cam.fy
+        moved[sel] = pc @ cam.camera_to_world[:3, :3].T + cam.camera_to_world[:3, 3]
+    assert associate_centred(means, world.cameras).ambiguous.mean() < 0.01
+    assert associate_centred(moved, world.cameras).ambiguous.mean() > 0.9
+
+
+def _slow_centred(means, cameras, tolerance, ratio):
+    """Per vertex and camera in plain Python: the offset from the centre of the pixel its
+    projection falls in (larger axis), the nearest camera (first of equals), its pixel, and
+    ambiguity; None for a vertex no camera sees."""
+    uvz = [cam.project(means) for cam in cameras]
+    out = []
+    for k in range(len(means)):
+        offs = []
+        for v, cam in enumerate(cameras):
+            (x, y), z = uvz[v][0][k], uvz[v][1][k]
+            if not (z > 0 and 0 <= x < cam.width and 0 <= y < cam.height):
+                continue
+            col, row = int(np.floor(x)), int(np.floor(y))
+            offs.append((max(abs(x - col - 0.5), abs(y - row - 0.5)), v, row * cam.width + col))
+        if not offs:
+            out.append(None)
+            continue
+        best = min(offs, key=lambda o: (o[0], o[1]))
+        rest = [o[0] for o in offs if o is not best]
+        second = min(rest) if rest else np.inf
+        amb = best[0] > tolerance or second <= max(ratio * best[0], tolerance / ratio)
+        out.append((best[1], best[2], amb))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_centre_choice_matches_a_loop(seed):
+    rng = np.random.default_rng(seed)
+    cams = [Camera(K=np.array([[20.0, 0, 6], [0, 20.0, 5], [0, 0, 1]]),
+                   camera_to_world=look_at(rng.normal(size=3) * 0.3 + (0, -3, 0), (0, 0, 0)),
+                   width=12, height=10) for _ in range(int(rng.integers(2, 5)))]
+    # Centres on pixel centres of random cameras, moved by 0 to 0.05 px (across the
+    # tolerance), random points, and some behind every camera.
+    v = rng.integers(0, len(cams), 60)
+    rows, cols = rng.integers(0, 10, 60), rng.integers(0, 12, 60)
+    centred = np.stack([cams[i].unproject(np.full((10, 12), d))[r, c] for i, r, c, d in
+                        zip(v, rows, cols, rng.uniform(1, 5, 60))])
+    centred += rng.normal(size=centred.shape) * rng.choice([0, 1e-4, 2e-3, 1e-2], (60, 1))
+    means = np.concatenate([centred, rng.uniform(-1, 1, (40, 3)), [[0, -30.0, 0]]])
+    a = associate_centred(means, cams, min_seen=0.0)
+    want = _slow_centred(means, cams, CENTRE_TOLERANCE, CENTRE_RATIO)
+    for k, w in enumerate(want):
+        got = (int(a.view_id[k]), int(a.pixel_id[k]), bool(a.ambiguous[k]))
+        if w is None:
+            assert got[1:] == (-1, True), k
+            assert got[0] == assoc._facing_view(means[k:k + 1], cams)[0], k
+        else:
+            assert got == w, k
+    assert 0 < a.ambiguous.sum() < len(means)
+
+
+# ------------------------------------------------------------------------------------------------
 # fused Gaussians
 # ------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("family", ["object", "street"])
@@ -322,6 +436,8 @@ def test_empty_export():
     world = make_world("object", num_views=2, height=32, width=48, seed=0)
     a = associate_ordered(np.zeros((0, 3)), world.cameras)
     assert len(a) == 0 and a.summary().startswith("associated 0 Gaussians")
+    a = associate_centred(np.zeros((0, 3)), world.cameras)
+    assert len(a) == 0 and a.pixel_id.dtype == np.int64
 
 
 @pytest.fixture(scope="module")
@@ -342,6 +458,9 @@ def test_nan_means_are_refused(small):
     with pytest.raises(ClearsplatError) as e:
         associate_fused(g, world.cameras, world.images)
     assert e.value.field == "means"
+    with pytest.raises(ClearsplatError) as e:
+        associate_centred(means, world.cameras)
+    assert e.value.field == "means" and "vertex 5" in str(e.value)
 
 
 def test_cameras_that_see_none_of_the_vertices_are_refused(small):
@@ -351,6 +470,11 @@ def test_cameras_that_see_none_of_the_vertices_are_refused(small):
     with pytest.raises(ClearsplatError) as e:
         associate_ordered(scene.gaussians.means, away)
     assert e.value.field == "cameras"
+    with pytest.raises(ClearsplatError, match="0.0 % of the vertices") as e:
+        associate_centred(scene.gaussians.means, away)
+    assert e.value.field == "cameras"
+    a = associate_centred(scene.gaussians.means, away, min_seen=0.0)
+    assert a.ambiguous.all() and (a.pixel_id == -1).all()
 
 
 def test_mismatched_images_are_refused(small):
@@ -388,6 +512,18 @@ def test_bad_options_are_refused(small, kwargs, field):
     assert e.value.field == field
 
 
+@pytest.mark.parametrize("kwargs, field", [({"tolerance": 0.0}, "tolerance"),
+                                           ({"tolerance": 0.5}, "tolerance"),
+                                           ({"tolerance": np.nan}, "tolerance"),
+                                           ({"ratio": 1.0}, "ratio"),
+                                           ({"min_seen": 1.5}, "min_seen")])
+def test_bad_centred_options_are_refused(small, kwargs, field):
+    world, scene = small
+    with pytest.raises(ClearsplatError) as e:
+        associate_centred(scene.gaussians.means, world.cameras, **kwargs)
+    assert e.value.field == field
+
+
 def test_bad_shapes_and_cameras_are_refused(small):
     world, scene = small
     with pytest.raises(ClearsplatError) as e:
@@ -399,6 +535,12 @@ def test_bad_shapes_and_cameras_are_refused(small):
     with pytest.raises(ClearsplatError) as e:
         associate_ordered(scene.gaussians.means, [world.cameras[0], "camera"])
     assert e.value.field == "cameras[1]"
+    with pytest.raises(ClearsplatError) as e:
+        associate_centred(scene.gaussians.means[:, :2], world.cameras)
+    assert e.value.field == "means"
+    with pytest.raises(ClearsplatError) as e:
+        associate_centred(scene.gaussians.means, [])
+    assert e.value.field == "cameras"
     with pytest.raises(ClearsplatError) as e:
         associate_fused(scene.gaussians, world.cameras, world.images, agree_ratio=1.5)
     assert e.value.field == "agree_ratio"

@@ -460,8 +460,35 @@ def longlrm_normalisation(extrinsics, scene_scale=1.0):
     return 1.0 / (scene_scale * np.abs(centres).max()), rot.T, pos
 
 
+def _bf16(x):
+    """``x`` rounded to bfloat16 (to nearest, ties to even), as float32."""
+    bits = np.ascontiguousarray(x, dtype=np.float32).view(np.uint32)
+    bits = (bits + np.uint32(0x7FFF) + ((bits >> np.uint32(16)) & np.uint32(1))) \
+        & np.uint32(0xFFFF0000)
+    return bits.view(np.float32)
+
+
+def _longlrm_bf16_means(means, c2w):
+    """Long-LRM's centres as ``LongLRM.forward`` computes them under bfloat16 autocast (its
+    configs' ``use_amp: true``, ``amp_dtype: bf16``; ``main.py`` evaluates under it), in its
+    normalised frame: the unit pixel ray (float32) times the camera rotation by a matmul in
+    bfloat16 (inputs rounded, output rounded), the distance in bfloat16, their product rounded
+    to bfloat16, plus the camera centre in float32. ``means (G, 3)`` in the model's order on
+    their pixels' rays, ``c2w (V, 4, 4)``: the ray of each is the direction from its camera."""
+    v = len(c2w)
+    view = np.repeat(np.arange(v), len(means) // v)
+    origin = c2w[view, :3, 3]
+    d = means - origin
+    dist = np.linalg.norm(d, axis=1, keepdims=True)
+    cam = np.einsum("nij,ni->nj", c2w[view, :3, :3], d / dist).astype(np.float32)
+    rot = _bf16(c2w[:, :3, :3]).astype(np.float64)[view]
+    ray = _bf16(np.einsum("nij,nj->ni", rot, _bf16(cam).astype(np.float64)))
+    step = _bf16(_bf16(dist) * ray)
+    return (origin.astype(np.float32) + step).astype(np.float64)
+
+
 def longlrm_save_gaussian_ply(path, pred, *, prune_ratio=0.0, random_ratio=0.0,
-                              opacity_threshold=0.001, seed=1111):
+                              opacity_threshold=0.001, seed=1111, bf16=False):
     """Long-LRM's ``model/llrm.py``: the ``LongLRM.forward`` prune block (``prune_ratio``,
     ``random_ratio``: 0.6 and 0.1 in ``configs/dl3dv_i540_32input_8target.yaml``, 0
     elsewhere) and ``save_gaussian_ply(opacity_threshold=0.001)`` as
@@ -477,12 +504,19 @@ def longlrm_save_gaussian_ply(path, pred, *, prune_ratio=0.0, random_ratio=0.0,
     times ``1 + (i mod 7) / 3``). Pruning keeps the ``int(G (1-p)(1-r))`` most opaque
     (``argsort`` descending) and ``int(G (1-p) r)`` of the rest by a random permutation
     (``torch.randperm`` on the process seed; NumPy's generator seeded with ``seed`` here);
-    then rows with ``sigmoid(opacity) <= opacity_threshold`` are dropped, order kept.
+    then rows with ``sigmoid(opacity) <= opacity_threshold`` are dropped, order kept. With
+    ``bf16`` the centres are moved along their rays as bfloat16 autocast computes them
+    (:func:`_longlrm_bf16_means`); otherwise as in float32.
 
     Returns the prediction index of every written vertex, in file order.
     """
     s, rt, p = longlrm_normalisation(pred["extrinsics"])
     means = s * (np.asarray(pred["means"], dtype=np.float64) - p) @ rt.T
+    if bf16:
+        c2w = np.array(pred["extrinsics"], dtype=np.float64)
+        c2w[:, :3, :3] = rt @ c2w[:, :3, :3]
+        c2w[:, :3, 3] = s * (c2w[:, :3, 3] - p) @ rt.T
+        means = _longlrm_bf16_means(means, c2w)
     g = len(means)
     rot = Rotation.from_matrix(rt @ Rotation.from_quat(pred["rotations"]).as_matrix()).as_quat()
     rot = rot[:, [3, 0, 1, 2]] * (1 + (np.arange(g) % 7) / 3)[:, None]

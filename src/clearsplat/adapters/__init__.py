@@ -13,7 +13,8 @@ NumPy), its cameras and input images, and returns a validated scene with the vie
   the voxel of every pixel from the encoder's outputs.
 - :func:`from_pixel_aligned`: any other per-pixel model.
 - :func:`covariance_to_scales_quats`, :func:`rotate_sh`: the conversions they use.
-- :func:`associate_ordered`, :func:`associate_fused`: the association recovered from geometry
+- :func:`associate_ordered`, :func:`associate_centred`, :func:`associate_fused`: the
+  association recovered from geometry
   and the input images where an export's vertex order has lost it
   (:mod:`clearsplat.adapters.associate`).
 """
@@ -21,8 +22,8 @@ NumPy), its cameras and input images, and returns a validated scene with the vie
 from ._common import (NEGATIVE_TOLERANCE, SCALE_FLOOR_ABS, SCALE_FLOOR_RATIO,
                       covariance_to_scales_quats, scales_quats_to_covariance)
 from .anysplat import anysplat_voxel_inverse, from_anysplat
-from .associate import (Association, Similarity, associate_fused, associate_ordered,
-                        normalised_frame)
+from .associate import (Association, Similarity, associate_centred, associate_fused,
+                        associate_ordered, normalised_frame)
 from .generic import from_pixel_aligned
 from .noposplat import from_noposplat, from_yonosplat
 from .pixelsplat import from_depthsplat, from_mvsplat, from_pixelsplat, from_resplat
@@ -34,5 +35,5 @@ __all__ = [
     "covariance_to_scales_quats",
     "scales_quats_to_covariance", "rotate_sh", "sh_basis", "SCALE_FLOOR_RATIO",
     "SCALE_FLOOR_ABS", "NEGATIVE_TOLERANCE", "Association", "Similarity", "associate_ordered",
-    "associate_fused", "normalised_frame",
+    "associate_fused", "associate_centred", "normalised_frame",
 ]

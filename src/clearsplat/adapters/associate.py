@@ -10,6 +10,11 @@ view and pixel made each Gaussian, this module recovers them:
   pixel's ray by sub-pixel offsets (Depth Anything 3's ``gs_ply``). The vertex sequence is cut
   into one run per view by a dynamic programme over the run boundaries; each vertex's pixel is
   the pixel its centre projects to in its view's camera.
+- :func:`associate_centred`: per-pixel exports in no useful order (a pruned or subsampled
+  file) whose centres lie on the ray through their pixel's centre (Long-LRM, WorldMirror):
+  projected into its own camera a centre lands on a pixel centre, to float32 round-off, and
+  into any other camera at a sub-pixel position that is near a centre only by chance. Each
+  vertex goes to the camera that puts it nearest a pixel centre, and to that pixel.
 - :func:`associate_fused`: Gaussians that mix pixels of several views (AnySplat's and
   WorldMirror's voxel fusion) or come from any trainer, in no useful order. From renders of
   every input camera: a Gaussian whose colour agrees with one view's image only (a transient)
@@ -35,8 +40,8 @@ from ..errors import ClearsplatError
 from ..render import prepare
 from ..scene import Gaussians, RenderSettings, Scene, sh_dc_to_rgb
 
-__all__ = ["Association", "Similarity", "associate_fused", "associate_ordered",
-           "normalised_frame"]
+__all__ = ["Association", "Similarity", "associate_centred", "associate_fused",
+           "associate_ordered", "normalised_frame", "CENTRE_TOLERANCE", "CENTRE_RATIO"]
 
 #: Pixels a vertex's projection may lie off its pixel's centre, per axis, by default. Depth
 #: Anything 3 moves centres by up to half a pixel (its xy offset); one pixel leaves room for
@@ -53,6 +58,20 @@ ORDER_WEIGHT = 2.0
 STALL_WEIGHT = 0.1
 #: Step codes of :func:`_order_steps`.
 STALL, BREAK = 1, 2
+#: Pixels, per axis, within which :func:`associate_centred` takes a vertex's projection to lie
+#: on a pixel centre. A centre the model put on its pixel's ray in float32 projects into its
+#: own camera within round-off of that pixel's centre: measured at most 3e-4 px for Long-LRM's
+#: computation at 960 x 540 (distances 0.3 to 5 in its normalised frame, cameras in a world
+#: frame 130 units away) and 1.4e-3 px for WorldMirror's at 952 x 714 with points 70 times
+#: nearer their camera than the camera is to the frame's origin; 1.4e-5 px on the 160 x 96
+#: test worlds. Any other camera puts it this near a centre by chance, ``(2 tolerance)^2`` per
+#: camera (0.16 %; 1.6 % for the neighbours in a video, whose shifts are small). Centres
+#: computed at a lower precision miss it (Long-LRM under bfloat16 autocast: 0.9 px median).
+CENTRE_TOLERANCE = 0.02
+#: :func:`associate_centred` tells two cameras apart when the second one puts the vertex more
+#: than this factor farther from a pixel centre than the first, and farther than
+#: ``CENTRE_TOLERANCE / CENTRE_RATIO``.
+CENTRE_RATIO = 10.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,7 +87,8 @@ class Association:
         Gaussians; a vertex that does not project into its view's image).
     ambiguous : (N,) bool
         No view is clearly right: for :func:`associate_ordered` the vertex lies outside its
-        view's image or breaks its run's row-major order; for :func:`associate_fused` no view
+        view's image or breaks its run's row-major order; for :func:`associate_centred` no
+        camera puts it on a pixel centre, or two do alike; for :func:`associate_fused` no view
         sees it with an agreeing colour (hidden everywhere, or a colour no image shows).
     source : str
         ``"geometry"`` or ``"images"``: what the association was recovered from.
@@ -371,6 +391,105 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
             row, col, ok = _projection(cameras[v], means[lo:hi], max_offset)
             pixel_id[lo:hi] = np.where(ok, row * cameras[v].width + col, -1)
     return Association(view_id, pixel_id, out | brk, "geometry")
+
+
+# ------------------------------------------------------------------------------------------------
+# pixel-centred exports in no order
+# ------------------------------------------------------------------------------------------------
+def _centre_offsets(cam: Camera, means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per centre, the pixel its projection falls in (``row * width + col``, -1 where none)
+    and the distance, in pixels, of the projection from that pixel's centre along the axis
+    where it is larger (inf where it is behind the camera or outside the image): (M,) int64,
+    (M,) float64."""
+    uv, z = cam.project(means)
+    ok = z > 0
+    x = np.where(ok, uv[:, 0], -1.0)
+    y = np.where(ok, uv[:, 1], -1.0)
+    ok &= (x >= 0) & (x < cam.width) & (y >= 0) & (y < cam.height)
+    col = np.floor(np.where(ok, x, 0.0))
+    row = np.floor(np.where(ok, y, 0.0))
+    off = np.maximum(np.abs(x - col - 0.5), np.abs(y - row - 0.5))
+    pixel = np.where(ok, row.astype(np.int64) * cam.width + col.astype(np.int64), -1)
+    return pixel, np.where(ok, off, np.inf)
+
+
+def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
+                      ratio: float = CENTRE_RATIO, min_seen: float = 0.5) -> Association:
+    """The view and pixel of each vertex of a per-pixel export whose centres lie on the rays
+    through their pixels' centres, in any order.
+
+    For exports that hold one Gaussian per pixel placed on the ray through the pixel's centre
+    (Long-LRM: ``ray_o + t d`` through ``(col + 0.5, row + 0.5)``; WorldMirror: ``c2w ((col -
+    W/2) z / f_x, (row - H/2) z / f_y, z)``, the pixel's centre once the principal point is
+    moved by +0.5 px) but in no order that says which (pruning by opacity, a random subset).
+    Projected into its own camera such a centre lands on its pixel's centre, to float32
+    round-off; into another camera at a sub-pixel position unrelated to that camera's pixel
+    grid, within ``tolerance`` of a centre with probability ``(2 tolerance)^2``.
+
+    Every vertex is projected into every camera, one camera at a time; its *offset* in a
+    camera is the distance of its projection from the centre of the pixel it falls in, along
+    the axis where it is larger (:func:`_centre_offsets`). Its view is the camera with the
+    smallest offset (the first of equals), its pixel the one it falls in there. It is
+    ambiguous where that offset exceeds ``tolerance`` (no camera puts it on a pixel centre:
+    the cameras do not fit, or the centres were computed at a lower precision) or where the
+    second smallest offset is at most ``max(ratio * smallest, tolerance / ratio)`` (two
+    cameras put it there alike: identical cameras, or ones a whole number of pixels apart).
+    A vertex no camera sees goes to the camera whose image centre it projects nearest to (or
+    that faces it most), with ``pixel_id = -1``.
+
+    Parameters
+    ----------
+    means : (N, 3) array_like
+        Vertex centres, in the frame of ``cameras``, as read (float64 preferably: a rounding
+        to float32 far from the frame's origin moves them by more than the model did).
+    cameras : sequence of Camera
+        The input cameras, in view-id order, with the principal points in clearsplat's
+        convention (pixel ``(row, col)`` centred at ``(col + 0.5, row + 0.5)``).
+    tolerance : float
+        Largest offset, in pixels, of a vertex on its pixel's centre, in ``(0, 0.5)``.
+    ratio : float
+        How much farther, at least (> 1), the second camera must put the vertex.
+    min_seen : float
+        Least share of the vertices that must project into some camera's image; fewer means
+        the cameras do not fit the export.
+
+    Returns
+    -------
+    Association
+        ``source = "geometry"``.
+
+    Raises
+    ------
+    ClearsplatError
+        Bad ``means`` (shape, NaN), ``cameras`` or options; cameras that see fewer than
+        ``min_seen`` of the vertices (``field="cameras"``).
+    """
+    means = _checked_means(means)
+    cameras = _checked_cameras(cameras)
+    for name, value, ok in (("tolerance", tolerance, 0 < tolerance < 0.5),
+                            ("ratio", ratio, ratio > 1), ("min_seen", min_seen,
+                                                          0 <= min_seen <= 1)):
+        if not (np.isfinite(value) and ok):
+            raise ClearsplatError(f"out of range: {value!r}", field=name)
+    n = len(means)
+    best, second = np.full(n, np.inf), np.full(n, np.inf)
+    view_id, pixel_id = np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+    for v, cam in enumerate(cameras):
+        pixel, off = _centre_offsets(cam, means)
+        nearer = off < best
+        second = np.where(nearer, best, np.minimum(second, off))
+        best = np.where(nearer, off, best)
+        view_id[nearer] = v
+        pixel_id[nearer] = pixel[nearer]
+    seen = np.isfinite(best)
+    if n and seen.mean() < min_seen:
+        raise ClearsplatError(f"only {100 * seen.mean():.1f} % of the vertices project into an "
+                              "input image: the cameras do not fit the export (another frame, "
+                              "other cameras?)", field="cameras")
+    if not seen.all():
+        view_id[~seen] = _facing_view(means[~seen], cameras)
+    ambiguous = ~(best <= tolerance) | (second <= np.maximum(ratio * best, tolerance / ratio))
+    return Association(view_id, pixel_id, ambiguous, "geometry")
 
 
 # ------------------------------------------------------------------------------------------------

@@ -28,7 +28,10 @@ recovered from the images (``voxelized=False``, ``--no-voxels``: per-pixel ``v h
 
 Other exports no longer give each vertex's view and pixel by their order
 (:data:`MODEL_FORMATS`); the association is recovered from the geometry or the images
-(:mod:`clearsplat.adapters.associate`):
+(:mod:`clearsplat.adapters.associate`). Per-pixel vertices in pixel order get theirs from the
+runs of the order; those in no order (Long-LRM pruned, WorldMirror 2.0 subsampled) from the
+camera that puts each centre on a pixel centre, where the model placed them there in float32
+(else from the images); voxels from the images:
 
 =========== ========================================= ======= =========================
 format      order of the vertices                     opacity frame
@@ -95,7 +98,7 @@ from .exports import read_export
 __all__ = ["EXPORT_FORMATS", "ExportFormat", "MODEL_FORMATS", "ModelExport", "ImportReport",
            "import_export", "export_slots", "viewer_rotation", "longlrm_frame", "load_views",
            "read_camera_params", "NEAR_FRACTION", "MIN_NEAR_SHARE", "MIN_SEEN_SHARE",
-           "MAX_ORDER_AMBIGUOUS", "VOXEL_ORDER_SHARE"]
+           "MAX_ORDER_AMBIGUOUS", "MIN_CENTRED_SHARE", "VOXEL_ORDER_SHARE"]
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -208,11 +211,13 @@ class ModelExport:
         ``"ordered"``: one Gaussian per kept pixel, view after view in ``(view, row, col)``
         order with unknown cuts; views and pixels from the geometry
         (:func:`~clearsplat.adapters.associate.associate_ordered`). ``"voxels-or-ordered"``:
-        voxel-merged when the vertices are sorted by voxel key, then (and when in no order at
-        all) each Gaussian's view from the images
-        (:func:`~clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``), else
-        ordered. ``"ranked-or-ordered"``: from the images when the export ranked its vertices
-        by opacity (pruning), else ordered. ``"refused"``: the file cannot be filtered.
+        voxel-merged when the vertices are sorted by voxel key, then each Gaussian's view from
+        the images (:func:`~clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``);
+        else ordered; in neither order (a subsample), views and pixels from the pixel centre
+        each centre lies on (:func:`~clearsplat.adapters.associate.associate_centred`), or from
+        the images where the centres are not on pixel centres. ``"ranked-or-ordered"``: where
+        the export ranked its vertices by opacity (pruning), as the subsample; else ordered.
+        ``"refused"``: the file cannot be filtered.
     opacity : {"logit", "raw"}
     frame : {"world", "da3", "longlrm", "first-rotation"}
         ``"world"``: the cameras' frame (the model's predicted cameras). ``"da3"``: the
@@ -227,7 +232,8 @@ class ModelExport:
     centred : bool
         A per-pixel vertex lies on the ray through its pixel's centre (no offsets): with the
         right cameras it projects there, within :data:`CENTRE_PX`; an ordered import where
-        fewer than :data:`MIN_NEAR_SHARE` do is refused.
+        fewer than :data:`MIN_NEAR_SHARE` do is refused, and one in no order is associated
+        from those centres (:data:`MIN_CENTRED_SHARE`).
     source : str
     """
 
@@ -242,7 +248,8 @@ class ModelExport:
 
 #: Exports whose vertex order no longer gives each vertex's view and pixel (details:
 #: ``docs/backbones.md``): the association is recovered from the geometry
-#: (:func:`clearsplat.adapters.associate.associate_ordered`) or the images
+#: (:func:`clearsplat.adapters.associate.associate_ordered`,
+#: :func:`clearsplat.adapters.associate.associate_centred`) or the images
 #: (:func:`clearsplat.adapters.associate.associate_fused`).
 MODEL_FORMATS = {
     "da3": ModelExport(
@@ -283,6 +290,14 @@ DA3_ROW_TOLERANCE = 4.0
 #: centre with the right cameras (they put it there up to float32 round-off); with other
 #: cameras the projections spread over the pixel, 4 % of them this near.
 CENTRE_PX = 0.1
+#: Least share of the vertices of a ``centred`` export in no order (Long-LRM pruned,
+#: WorldMirror 2.0 subsampled) that a camera must put unambiguously on a pixel centre
+#: (:func:`clearsplat.adapters.associate.associate_centred`) for that association to be taken;
+#: below it each Gaussian's view is recovered from the images. Exports computed in float32
+#: have over 99.9 % on the test worlds (video-like captures included); Long-LRM's under
+#: bfloat16 autocast 0.5 to 3.6 %; centres on no pixel centre about ``V (2 tolerance)^2`` by
+#: chance (5 % with 32 views).
+MIN_CENTRED_SHARE = 0.5
 #: Voxel order: ``x`` falls back below its running maximum by at most a voxel; taken as such
 #: when the 99th percentile of that fall-back is within this share of the ``x`` extent.
 VOXEL_ORDER_SHARE = 0.02
@@ -538,7 +553,8 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         the same size). Their frame is the world of the result.
     images : sequence of (H, W, 3) arrays, optional
         Those views' images in [0, 1] (the filter needs them; so does the association of
-        fused Gaussians: voxels, Long-LRM's pruned exports).
+        fused Gaussians: voxels, and the exports in no order whose centres are not on their
+        pixels' centres).
     trim, spp, opacity_cut, order : optional
         Override the format's defaults (``trim=0`` for an untrimmed export, ...); not for
         :data:`MODEL_FORMATS`.
@@ -752,10 +768,12 @@ def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
     frame = longlrm_frame(cams) if spec.frame == "longlrm" else _identity()
     moved = _similar(path, g, frame)
     if spec.association == "voxels-or-ordered" and _voxel_sorted(g.means):
-        note = "vertices in voxel order (voxel-merged): each voxel's view recovered from the images"
-    elif spec.association == "ranked-or-ordered" and _opacity_ranked(g.opacities):
-        note = ("vertices ranked by opacity (pruned): each Gaussian's view recovered from the "
-                "images")
+        return _import_fused(path, format, moved, cams, images,
+                             allow_misaligned=allow_misaligned, frame=frame,
+                             notes=["vertices in voxel order (voxel-merged): each voxel's view "
+                                    "recovered from the images"])
+    if spec.association == "ranked-or-ordered" and _opacity_ranked(g.opacities):
+        order = "ranked by opacity (pruned)"
     else:
         assoc = _ordered(path, format, spec, moved.means, cams, min_seen,
                          fallback=spec.association == "voxels-or-ordered")
@@ -763,10 +781,16 @@ def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
             return _recovered(path, format, moved, assoc, cams, images, frame,
                               ["vertices in pixel order, view after view: each one's view and "
                                "pixel recovered from where its centre projects"])
-        note = ("vertices in neither voxel nor pixel order (subsampled): each one's view "
-                "recovered from the images")
+        order = "in neither voxel nor pixel order (subsampled)"
+    assoc = _centred(frame.apply(g.means), cams)
+    if assoc is not None:
+        return _recovered(path, format, moved, assoc, cams, images, frame,
+                          [f"vertices {order}: each one's view and pixel recovered from the "
+                           "camera that puts its centre on a pixel centre"])
     return _import_fused(path, format, moved, cams, images, allow_misaligned=allow_misaligned,
-                         notes=[note], frame=frame)
+                         notes=[f"vertices {order}, centres not on pixel centres (computed at a "
+                                "lower precision, or other cameras): each Gaussian's view "
+                                "recovered from the images"], frame=frame)
 
 
 def _bands(k: int) -> str:
@@ -993,6 +1017,22 @@ def _ordered(path, format, spec, means, cams, min_seen, *, fallback: bool):
                 f"{100 * MIN_NEAR_SHARE:.0f} % needed): the cameras (their order, size, poses) "
                 f"do not fit the export, or the file is not {format}'s export; "
                 "allow_misaligned=True (--allow-misaligned) keeps it", path=path, field="cameras")
+    return assoc
+
+
+def _centred(means, cams):
+    """:func:`clearsplat.adapters.associate.associate_centred` of the centres in the cameras'
+    frame (float64, as mapped from the file), or None where fewer than
+    :data:`MIN_CENTRED_SHARE` of them get a view unambiguously: the centres are not on their
+    pixels' centres to float32 round-off (a model run at a lower precision: Long-LRM under
+    its configs' bfloat16 autocast) or the cameras do not fit."""
+    from ..adapters.associate import associate_centred
+    try:
+        assoc = associate_centred(means, cams, min_seen=0.0)
+    except ClearsplatError:
+        return None
+    if len(assoc) and 1.0 - float(assoc.ambiguous.mean()) < MIN_CENTRED_SHARE:
+        return None
     return assoc
 
 
