@@ -269,8 +269,8 @@ def test_centres_off_their_pixel_centres_are_ambiguous(prediction):
 
 def _slow_centred(means, cameras, tolerance, ratio):
     """Per vertex and camera in plain Python: the offset from the centre of the pixel its
-    projection falls in (larger axis), the nearest camera (first of equals), its pixel, and
-    ambiguity; None for a vertex no camera sees."""
+    projection falls in (larger axis), the nearest camera (first of equals), its pixel (-1
+    off every pixel centre), and ambiguity; None for a vertex no camera sees."""
     uvz = [cam.project(means) for cam in cameras]
     out = []
     for k in range(len(means)):
@@ -288,7 +288,7 @@ def _slow_centred(means, cameras, tolerance, ratio):
         rest = [o[0] for o in offs if o is not best]
         second = min(rest) if rest else np.inf
         amb = best[0] > tolerance or second <= max(ratio * best[0], tolerance / ratio)
-        out.append((best[1], best[2], amb))
+        out.append((best[1], best[2] if best[0] <= tolerance else -1, amb))
     return out
 
 

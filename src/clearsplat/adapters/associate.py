@@ -44,12 +44,14 @@ __all__ = ["Association", "Similarity", "associate_centred", "associate_fused",
            "associate_ordered", "normalised_frame", "CENTRE_TOLERANCE", "CENTRE_RATIO"]
 
 #: Pixels a vertex's projection may lie off its pixel's centre, per axis, by default. Depth
-#: Anything 3 moves centres by up to half a pixel (its xy offset); one pixel leaves room for
+#: Anything 3 moves centres by a predicted xy offset (unbounded in its code, sub-pixel in what
+#: a trained head predicts; the tests use up to half a pixel); one pixel leaves room for
 #: cameras that differ a little from the ones the model placed its Gaussians with (its own
 #: predicted poses, a model frame undone only approximately).
 MAX_OFFSET = 1.0
-#: Cost of a break in row-major order inside one view's run (a step back by more than a row),
-#: in units of the cost of one vertex outside its view's image.
+#: Cost of a break in row-major order inside one view's run (a step back by more than the
+#: offsets can explain: two rows at the default ``MAX_OFFSET``), in units of the cost of one
+#: vertex outside its view's image.
 ORDER_WEIGHT = 2.0
 #: Cost of a stall inside one view's run (the same pixel as the previous vertex, or a little
 #: back), counted only with ``max_offset <= 0.5``: weak evidence, which tells apart cameras
@@ -431,7 +433,8 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
     the axis where it is larger (:func:`_centre_offsets`). Its view is the camera with the
     smallest offset (the first of equals), its pixel the one it falls in there. It is
     ambiguous where that offset exceeds ``tolerance`` (no camera puts it on a pixel centre:
-    the cameras do not fit, or the centres were computed at a lower precision) or where the
+    the cameras do not fit, or the centres were computed at a lower precision; then its
+    ``pixel_id`` is -1, as its pixel is a guess) or where the
     second smallest offset is at most ``max(ratio * smallest, tolerance / ratio)`` (two
     cameras put it there alike: identical cameras, or ones a whole number of pixels apart).
     A vertex no camera sees goes to the camera whose image centre it projects nearest to (or
@@ -489,6 +492,9 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
     if not seen.all():
         view_id[~seen] = _facing_view(means[~seen], cameras)
     ambiguous = ~(best <= tolerance) | (second <= np.maximum(ratio * best, tolerance / ratio))
+    # On no pixel centre (a merged voxel, a model run at a lower precision): the nearest
+    # camera's view, but no pixel, which the filter would read as exact.
+    pixel_id[~(best <= tolerance)] = -1
     return Association(view_id, pixel_id, ambiguous, "geometry")
 
 

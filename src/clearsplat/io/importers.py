@@ -824,24 +824,27 @@ def _da3_association(path, means, cams, min_seen):
     With given poses its export is in its normalised frame of them
     (:func:`clearsplat.adapters.associate.normalised_frame`), rescaled by the model only
     approximately (an Umeyama scale, clamped to [1/3, 3]); without, in the frame of its own
-    predicted cameras (the cameras to give). Each is tried, the normalised one also rescaled
-    by :data:`DA3_SCALES`, and the scale and shift fitted (:func:`_da3_fit`); the first whose
-    fit puts at least :data:`MIN_NEAR_SHARE` of the pinned vertices near their pixel is kept
-    (with ``min_seen = 0``, ``allow_misaligned``: the best).
+    predicted cameras (the cameras to give). Both are tried, and the scale and shift fitted
+    (:func:`_da3_fit`); of those whose fit puts at least :data:`MIN_NEAR_SHARE` of the pinned
+    vertices near their pixel, the one whose pinned vertices lie nearest their pixels' centres
+    (median) is kept, the cameras' frame on a tie: a model frame close to the normalised one
+    also fits it, a little off. Where neither fits, the normalised frame rescaled by
+    :data:`DA3_SCALES` is tried, the first that fits kept (with ``min_seen = 0``,
+    ``allow_misaligned``: the best).
     """
     from ..adapters.associate import Similarity, associate_ordered, normalised_frame
     norm = normalised_frame(cams)
-    tries = [("DA3's normalised frame of the cameras' poses", norm),
-             ("the cameras' frame", Similarity.identity())]
+    tries = [("the cameras' frame", Similarity.identity()),
+             ("DA3's normalised frame of the cameras' poses", norm)]
     tries += [(f"DA3's normalised frame of the cameras' poses, rescaled by {k:.3g}",
                Similarity(norm.scale * k, norm.rotation, norm.translation)) for k in DA3_SCALES]
     means = np.asarray(means, dtype=np.float64)
     best = None
-    for name, init in tries:
+    for k, (name, init) in enumerate(tries):
         fitted = _da3_fit(means, cams, init)
-        if fitted is not None and (best is None or fitted[1] > best[2]):
-            best = (name, fitted[0], fitted[1])
-        if best is not None and best[2] >= MIN_NEAR_SHARE:
+        if fitted is not None and (best is None or _da3_better(fitted, best[1:])):
+            best = (name, *fitted)
+        if k >= 1 and best is not None and best[2] >= MIN_NEAR_SHARE:
             break
     if best is None or (best[2] < MIN_NEAR_SHARE and min_seen > 0):
         share = 0.0 if best is None else best[2]
@@ -851,7 +854,7 @@ def _da3_association(path, means, cams, min_seen):
             f"near it (at least {100 * MIN_NEAR_SHARE:.0f} % needed); the cameras (their order, "
             "--views), the image size or the format do not match the export; "
             "allow_misaligned=True (--allow-misaligned) keeps it", path=path, field="cameras")
-    name, frame, share = best
+    name, frame, share, _ = best
     try:
         assoc = associate_ordered(frame.apply(means), cams, min_seen=min_seen)
     except ClearsplatError as e:
@@ -864,7 +867,8 @@ def _da3_fit(means, cams, init):
     """Scale and shift of a DA3 frame (``s A x + b``, ``A`` the rotation of ``init``) fitted to
     the pixel rays of the vertices whose pixel the order pins (:func:`_da3_pinned`), three
     times, re-associating in between. Returns ``(frame, share of those vertices near their
-    pixel)``, or None when too few are pinned."""
+    pixel, their median distance from their pixel's centre in px)``, or None when too few are
+    pinned."""
     from ..adapters.associate import Similarity, associate_ordered
     frame = init
     for _ in range(3):
@@ -882,7 +886,17 @@ def _da3_fit(means, cams, init):
         frame = Similarity(s, frame.rotation, b)
     res = _residuals(frame.apply(means[use]), cams, assoc.view_id[use], pinned[use])
     near = max(1.0, NEAR_FRACTION * max(cams[0].height, cams[0].width))
-    return frame, float((np.abs(res) <= near).all(axis=1).mean())
+    return (frame, float((np.abs(res) <= near).all(axis=1).mean()),
+            float(np.median(np.linalg.norm(res, axis=1))))
+
+
+def _da3_better(fitted: tuple, best: tuple) -> bool:
+    """Whether a fit ``(frame, share, median)`` beats ``best``: the first to reach
+    :data:`MIN_NEAR_SHARE`, then the lower median distance, else the higher share."""
+    fits, best_fits = fitted[1] >= MIN_NEAR_SHARE, best[1] >= MIN_NEAR_SHARE
+    if fits != best_fits:
+        return fits
+    return fitted[2] < best[2] if fits else fitted[1] > best[1]
 
 
 def _da3_pinned(pts, cams, view_id) -> np.ndarray:
