@@ -548,3 +548,19 @@ def test_bad_shapes_and_cameras_are_refused(small):
         Association(scene.view_id[:3], scene.pixel_id[:3], np.zeros(3, bool)).to_scene(
             scene.gaussians, world.cameras)
     assert e.value.field == "gaussians"
+
+
+def test_view_choice_does_not_depend_on_the_chunk(monkeypatch):
+    """The view choice works through the Gaussians a chunk of rows at a time: the same result
+    whatever the chunk."""
+    from clearsplat.adapters import associate as assoc
+    rng = np.random.default_rng(7)
+    total = rng.uniform(0, 2, (1000, 5)).astype(np.float16)
+    total[rng.random(total.shape) < 0.3] = 0
+    agreeing = (total * rng.uniform(0, 1, total.shape)).astype(np.float16)
+    whole = assoc._choose_views(total, agreeing, agree_ratio=0.7, min_weight=0.05)
+    monkeypatch.setattr(assoc, "_CHUNK", 7)
+    chunked = assoc._choose_views(total, agreeing, agree_ratio=0.7, min_weight=0.05)
+    for a, b in zip(whole, chunked):
+        np.testing.assert_array_equal(a, b)
+    assert whole[1].any() and whole[2].any() and whole[3].any()

@@ -594,6 +594,8 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
 
 #: Largest summed weight held (float16).
 _WEIGHT_CAP = 65504.0
+#: Gaussians whose views are chosen at once (their float64 work: about 40 bytes per view).
+_CHUNK = 1 << 18
 
 
 def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, settings,
@@ -634,29 +636,34 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         No camera renders it at all: its view is to come from geometry.
     """
     n = total.shape[0]
-    w = total.astype(np.float64)
-    a = np.minimum(agreeing.astype(np.float64), w)
-    r = a / np.maximum(w, 1e-30)
-    best = np.argmax(a * r, axis=1)
-    r_best = r[np.arange(n), best]
-    ok = (w >= min_weight) & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
-    count = ok.sum(axis=1)
-    view_id = np.where(r_best > 0, best, np.argmax(w, axis=1)).astype(np.int64)
-    return view_id, count >= 2, count == 0, w.max(axis=1, initial=0.0) <= 0
+    view_id, count = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    unseen = np.empty(n, dtype=bool)
+    for lo in range(0, n, _CHUNK):      # float64 work held for one chunk of rows at a time
+        rows = slice(lo, min(lo + _CHUNK, n))
+        w = total[rows].astype(np.float64)
+        a = np.minimum(agreeing[rows].astype(np.float64), w)
+        r = a / np.maximum(w, 1e-30)
+        best = np.argmax(a * r, axis=1)
+        r_best = r[np.arange(len(w)), best]
+        ok = (w >= min_weight) & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
+        count[rows] = ok.sum(axis=1)
+        view_id[rows] = np.where(r_best > 0, best, np.argmax(w, axis=1))
+        unseen[rows] = w.max(axis=1, initial=0.0) <= 0
+    return view_id, count >= 2, count == 0, unseen
 
 
 def _unneeded_view(means: np.ndarray, cameras, total: np.ndarray) -> np.ndarray:
     """(M,) int64: per centre, a camera that does not need it, given its summed weights ``W``
     (M, V): of the cameras that have it outside their image (or behind them), the one with the
     least weight; where every camera has it inside, the one that sees it least."""
-    w = total.astype(np.float64)
-    pick = np.argmin(w, axis=1)
+    pick = np.argmin(total, axis=1)
     least = np.full(len(means), np.inf)
     for v, cam in enumerate(cameras):
         outside = ~_projection(cam, means, 0.5)[2]
-        better = outside & (w[:, v] < least)
+        wv = total[:, v].astype(np.float64)
+        better = outside & (wv < least)
         pick[better] = v
-        least[better] = w[better, v]
+        least[better] = wv[better]
     return pick.astype(np.int64)
 
 
