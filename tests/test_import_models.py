@@ -698,3 +698,23 @@ def test_da3_predicted_cameras_near_the_normalised_frame(tmp_path, world, degree
     assert "the cameras' frame" in report.notes[0]
     assert (imported.pixel_id == kept % (H * W)).mean() >= 0.99
     _check_da3(moved, imported, report, kept, pred)
+
+
+def test_da3_saturated_confidences_are_read_as_opacity_0_and_1(tmp_path, world):
+    """Depth Anything 3 writes log(p / (1 - p)) unclamped: a confidence that saturated in
+    float32 is an infinite logit, read as opacity 1 or 0 (a plain PLY read still refuses it)."""
+    _, scene, _ = world
+    pred = _da3_prediction(scene, seed=4)
+    opac = pred["opacities"].copy()
+    opac[::97], opac[5::97] = 1.0, 0.0
+    pred["opacities"] = opac
+    path = tmp_path / "0000.ply"
+    with np.errstate(divide="ignore"):
+        kept = up.da3_export_to_gs_ply(path, pred, poses_given=True)
+    with pytest.raises(ClearsplatError, match="opacity: non-finite value -?inf"):   # as written
+        read_export(path)
+    imported, report = import_export(path, "da3", scene.cameras, scene.images)
+    np.testing.assert_array_equal(imported.gaussians.opacities[opac[kept] == 1.0], 1.0)
+    np.testing.assert_array_equal(imported.gaussians.opacities[opac[kept] == 0.0], 0.0)
+    assert (opac[kept] == 1.0).any() and (opac[kept] == 0.0).any()
+    _check_da3(scene, imported, report, kept, pred)

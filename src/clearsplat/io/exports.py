@@ -47,7 +47,7 @@ EXPORT_PRESETS = {
 
 
 def read_export(path, *, preset: str | None = None, opacity: str | None = None,
-                color: str | None = None, to_world=None):
+                color: str | None = None, to_world=None, saturated_logits: bool = False):
     """Read a model's PLY export as clearsplat Gaussians.
 
     Parameters
@@ -68,6 +68,8 @@ def read_export(path, *, preset: str | None = None, opacity: str | None = None,
     to_world : (4, 4) array_like, optional
         A similarity ``[[s R, t], [0, 1]]`` from the file's frame to the world: centres become
         ``s R x + t``, scales ``s * scales``, rotations ``R q``, SH rotated by ``R``.
+    saturated_logits : bool
+        Infinite opacity logits read as opacity 0 or 1 (:func:`clearsplat.io.read_ply`).
 
     Returns
     -------
@@ -96,7 +98,7 @@ def read_export(path, *, preset: str | None = None, opacity: str | None = None,
     if opts["color"] not in ("sh", "dc", "rgb"):
         raise ClearsplatError(f"must be 'sh', 'dc' or 'rgb', got {opts['color']!r}",
                               field="color")
-    g, view_id, pixel_id = read_ply(path)
+    g, view_id, pixel_id = read_ply(path, saturated_logits=saturated_logits)
     extra = dict(g.extra)
     opac, sh, means, scales, quats = g.opacities, g.sh, g.means, g.scales, g.quats
     if opts["opacity"] == "raw":

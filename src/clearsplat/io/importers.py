@@ -753,7 +753,9 @@ def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
     spec = MODEL_FORMATS[format]
     if spec.association == "refused":
         raise _refusal(path, format, spec)
-    g, _, _ = read_export(path, opacity=spec.opacity, color="sh")
+    # Depth Anything 3 writes log(p / (1 - p)) unclamped: a saturated confidence is infinite.
+    g, _, _ = read_export(path, opacity=spec.opacity, color="sh",
+                          saturated_logits=format == "da3")
     if g.sh.shape[1] != spec.bands:
         raise ClearsplatError(f"{format}'s export writes {_bands(spec.bands)}, this file "
                               f"{_bands(g.sh.shape[1])}: it is not {format}'s export",

@@ -357,13 +357,18 @@ def _identity_f32(raw: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 # reading
 # ------------------------------------------------------------------------------------------------
-def read_ply(path) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
+def read_ply(path, *, saturated_logits: bool = False
+             ) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
     """Read Gaussians from a 3DGS-layout PLY file.
 
     Parameters
     ----------
     path : str or os.PathLike
         The ``.ply`` file (binary little/big-endian or ASCII). It is only read.
+    saturated_logits : bool, default False
+        Read an infinite ``opacity`` logit as opacity 1 (``+inf``) or 0 (``-inf``): what an
+        export writes that takes ``log(p / (1 - p))`` of an opacity that saturated in float32
+        (Depth Anything 3's). Otherwise it is refused as any non-finite value.
 
     Returns
     -------
@@ -397,7 +402,8 @@ def read_ply(path) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
     cols = _read_body(data, header, path)
     types = {p.name: p.token for p in next(e for e in header.elements
                                            if e.name == "vertex").props}
-    return _columns_to_gaussians(cols, types, header.comments, path)
+    return _columns_to_gaussians(cols, types, header.comments, path,
+                                 saturated_logits=saturated_logits)
 
 
 def _check_read_memory(path: Path) -> None:
@@ -421,15 +427,19 @@ def _check_read_memory(path: Path) -> None:
 _CHECK_ABOVE = 256 * 2**20
 
 
-def _columns_to_gaussians(cols: dict, types: dict, comments: list, path):
+def _columns_to_gaussians(cols: dict, types: dict, comments: list, path, *,
+                          saturated_logits: bool = False):
     for name in _REQUIRED:
         if name not in cols:
             raise ClearsplatError(
                 "required property is missing (a 3DGS PLY has x y z, f_dc_0..2, "
                 "opacity, scale_0..2, rot_0..3)", path=path, field=name)
     for name, col in cols.items():
-        if col.dtype.kind == "f" and not np.isfinite(col).all():
-            i = int(np.argmax(~np.isfinite(col)))
+        finite = np.isfinite(col) if col.dtype.kind == "f" else None
+        if finite is not None and saturated_logits and name == "opacity":
+            finite = finite | np.isinf(col)     # a saturated logit: opacity 0 or 1
+        if finite is not None and not finite.all():
+            i = int(np.argmax(~finite))
             raise ClearsplatError(f"non-finite value {col[i]} (first at vertex {i})",
                                   path=path, field=name)
     for name in _XYZ + _DC + _ROT + tuple(c for c in cols if _REST_RE.match(c)):
