@@ -564,3 +564,28 @@ def test_view_choice_does_not_depend_on_the_chunk(monkeypatch):
     for a, b in zip(whole, chunked):
         np.testing.assert_array_equal(a, b)
     assert whole[1].any() and whole[2].any() and whole[3].any()
+
+
+@pytest.mark.parametrize("call, option", [
+    ("ordered", "max_offset"), ("ordered", "order_weight"), ("ordered", "min_seen"),
+    ("centred", "tolerance"), ("centred", "ratio"), ("centred", "min_seen"),
+    ("fused", "colour_sigma"), ("fused", "agree_ratio"), ("fused", "min_weight")])
+@pytest.mark.parametrize("value", ["a lot", None, True, float("nan"), -1.0])
+def test_options_that_are_not_numbers_in_range_are_one_line(call, option, value):
+    from clearsplat import Gaussians
+    from clearsplat.adapters import associate_centred, associate_fused, associate_ordered
+    cam = Camera(K=np.array([[20.0, 0, 6], [0, 20.0, 5], [0, 0, 1]]),
+                 camera_to_world=look_at(np.array([0.0, -3, 0]), (0, 0, 0)), width=12, height=10)
+    means = np.zeros((3, 3))
+    if call == "ordered":
+        run = lambda: associate_ordered(means, [cam], **{option: value})   # noqa: E731
+    elif call == "centred":
+        run = lambda: associate_centred(means, [cam], **{option: value})   # noqa: E731
+    else:
+        g = Gaussians(means, np.full((3, 3), 0.1), np.tile([1.0, 0, 0, 0], (3, 1)),
+                      np.full(3, 0.5), np.zeros((3, 1, 3)))
+        image = np.zeros((10, 12, 3))
+        run = lambda: associate_fused(g, [cam], [image], **{option: value})   # noqa: E731
+    with pytest.raises(ClearsplatError) as e:
+        run()
+    assert e.value.field == option

@@ -166,6 +166,16 @@ def _checked_means(means, field: str = "means") -> np.ndarray:
     return m
 
 
+def _number(name: str, value) -> float:
+    """``value`` as a float, or one line naming the option where it is none."""
+    if isinstance(value, (bool, np.bool_)):
+        raise ClearsplatError(f"expected a number, got {value!r}", field=name)
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ClearsplatError(f"expected a number, got {value!r}", field=name) from None
+
+
 def _checked_cameras(cameras) -> list:
     cameras = list(cameras)
     if not cameras:
@@ -361,10 +371,18 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
     views = _checked_views(views, len(cameras))
+    max_offset, order_weight, stall_weight, min_seen = (
+        _number(name, value) for name, value in (("max_offset", max_offset),
+                                                  ("order_weight", order_weight),
+                                                  ("stall_weight", stall_weight),
+                                                  ("min_seen", min_seen)))
     for name, value in (("max_offset", max_offset), ("order_weight", order_weight),
                         ("stall_weight", stall_weight)):
         if not (np.isfinite(value) and value >= 0) or (name == "max_offset" and value == 0):
-            raise ClearsplatError(f"expected a number > 0, got {value!r}", field=name)
+            raise ClearsplatError(f"expected a number >= 0 (max_offset > 0), got {value!r}",
+                                  field=name)
+    if not 0 <= min_seen <= 1:
+        raise ClearsplatError(f"expected a share in [0, 1], got {min_seen!r}", field="min_seen")
     n = len(means)
     if n == 0:
         e = np.empty(0, dtype=np.int64)
@@ -469,6 +487,8 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
     """
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
+    tolerance, ratio, min_seen = (_number(name, value) for name, value in (
+        ("tolerance", tolerance), ("ratio", ratio), ("min_seen", min_seen)))
     for name, value, ok in (("tolerance", tolerance, 0 < tolerance < 0.5),
                             ("ratio", ratio, ratio > 1), ("min_seen", min_seen,
                                                           0 <= min_seen <= 1)):
@@ -574,6 +594,8 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
     gaussians.validate()
     cameras = _checked_cameras(cameras)
     images = _checked_images(images, cameras)
+    colour_sigma, min_weight, agree_ratio = (_number(name, value) for name, value in (
+        ("colour_sigma", colour_sigma), ("min_weight", min_weight), ("agree_ratio", agree_ratio)))
     for name, value in (("colour_sigma", colour_sigma), ("min_weight", min_weight),
                         ("agree_ratio", agree_ratio)):
         if not (np.isfinite(value) and value > 0) or (name == "agree_ratio" and value > 1):
