@@ -1174,13 +1174,10 @@ def _count_message(fmt, name, n, v, gh, gw) -> str:
 
 
 def _checked_cameras(cameras) -> list:
-    cams = list(cameras)
-    if not cams:
-        raise ClearsplatError("no cameras", field="cameras")
+    """The cameras as a list (checked as the association checks them), all of one size."""
+    from ..adapters.associate import _checked_cameras as checked
+    cams = checked(cameras)
     for i, c in enumerate(cams):
-        if not isinstance(c, Camera):
-            raise ClearsplatError(f"expected a Camera, got {type(c).__name__}",
-                                  field=f"cameras[{i}]")
         if (c.height, c.width) != (cams[0].height, cams[0].width):
             raise ClearsplatError(f"camera is {c.width}x{c.height}, camera 0 is "
                                   f"{cams[0].width}x{cams[0].height}: the model saw one size",
