@@ -563,46 +563,31 @@ command does not regenerate these figures.
 | 16, `fast` | 8.70 | 1.88 | 2.37 | 4.24 / 1.24 | yes |
 
 Commands: `python benchmarks/filter_speed.py --device cuda --set backend=torch --views 4,8,16
---repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one on a small scene; then
-the native filter, for the last column), the same with `--views 32 --family street --repeats 1`
-and with `--preset fast --views 8,16 --repeats 1`; the native seconds: the same commands without
-`--device cuda --set backend=torch`, with `--full-repeats 0`. `bash benchmarks/gpu_check.sh
-OUTDIR` runs the GPU steps, the CUDA tests and the profile in one go (406 s there). For scale:
-the paper reports 3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090.
-The native filter on 16 cores is only about 1.5 times as fast as on the 2-core VM ("Speed"
-above): its refinement and the verification's serial NumPy work do not spread over cores.
-Counts removed, and a first GPU run with CUDA's start (5.49 s at 4 views, 1.43 s the next):
-`python benchmarks/gpu_decisions.py --views 4,8 --set backend=torch`.
+--repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one), the same with
+`--views 32 --family street --repeats 1` and `--preset fast --views 8,16 --repeats 1`; native:
+without `--device cuda --set backend=torch`. `bash benchmarks/gpu_check.sh OUTDIR` runs all
+of it (406 s there). The paper reports 3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16
+views) on an RTX 4090. The native filter on 16 cores is only about 1.5 times as fast as on the
+2-core VM: its refinement and the verification's serial NumPy work do not spread over cores.
 
 **Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 4` (same
-machine): 2.26 s under the profiler, of which the GPU is busy 0.39 s (17 %); the filter issues
-119,903 torch ops, 49,865 kernel launches (0.37 s of host time in the launch calls alone), 3,157
-stream synchronisations and 3,631 copies. Of the GPU's 0.39 s, the scans of compositing
-(`cumsum`) take 39 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of
-a tile and scans them all, where a rasterizer kernel stops each pixel at its transmittance
-limit. The unprofiled runs' steps (`filter_speed.py` above) grow with the renders' count the
-same way: at 16 views the exclusion renders take 10.7 s and the reveal reference's renders
-6.4 s of the 28.4. So the backend is bound by launches and host round trips, and on the device
-by fragment expansion; 0.3 s at 8 views needs fused compositing kernels and stages that stay
-on the device, not a faster card.
+machine): of 2.26 s under the profiler the GPU is busy 0.39 s (17 %), with 119,903 torch ops,
+49,865 kernel launches and 3,157 stream synchronisations; of its 0.39 s, compositing's scans
+(`cumsum`) take 39 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of a
+tile, where a rasterizer kernel stops each pixel at its transmittance limit. It is bound by
+launches, host round trips and fragment expansion: fused compositing kernels are needed, not a
+faster card.
 
-**Decisions.** The backend's renders agree with the native rasterizer's to float32 rounding on
-the GPU exactly as on CPU tensors. At 8 views and 256x448 that rounding flips a few decisions,
-on CPU tensors too: the support condition compares patch mean depths before and after the
-exclusion, and about a third of each view's patches differ by less than 1e-5 of their depth,
-where rounding decides (`python benchmarks/support_rounding.py`). A dense street, with
-neighbours, the reveal reference and the static verification base, got the native decisions
-exactly (`python benchmarks/gpu_decisions.py --views 24 --family street --resolution 128x224
---set backend=torch --set verify_base=static`: 24,859 removed, 18.3 s against 4.9 s
-natively). The CUDA
-tests (`python -m pytest tests/test_torch_backend.py -k cuda`: renders against the native
-rasterizer and the reference, the filter's decisions at 4 and 8 views on the tests' small
-scenes, the keep mask on the device, the CLI) passed there: 10 passed.
+**Decisions.** The backend's renders agree with the native ones to float32 rounding, and at 8
+views that rounding flips a few decisions (on CPU tensors too): about a third of each view's
+patches differ by less than 1e-5 of their depth in the support condition (`python
+benchmarks/support_rounding.py`). A dense street got the native decisions exactly (`python
+benchmarks/gpu_decisions.py --views 24 --family street --resolution 128x224 --set
+backend=torch --set verify_base=static`: 24,859 removed, 18.3 s against 4.9 s natively). The
+CUDA tests (`python -m pytest tests/test_torch_backend.py -k cuda`) passed there: 10 passed.
 
-**gsplat** (`--set device=cuda`, the default backend on CUDA) was not measured: that machine had
-no gsplat and no network, and gsplat's PyPI release compiles its CUDA code on first use. The
-tests check its path through the fake gsplat of `tests/test_gsplat.py`; where gsplat is
-installed, `filter_speed.py --device cuda` and `gpu_decisions.py` without `--set` measure it.
+**gsplat** (`--set device=cuda`, the default on CUDA) was not measured (no gsplat on that
+machine); `tests/test_gsplat.py` checks its path with a fake gsplat.
 """,
     "datasets": """## Real datasets: RobustNeRF and NeRF On-the-go
 

@@ -191,3 +191,20 @@ def check_memory(estimate: int, *, available: int | None = None, what: str = "th
     raise ClearsplatError(
         f"{what} needs about {_gb(estimate)}, {_gb(available)} available: {advice} "
         f"({ENV_SWITCH}=0 skips this check)", path=path, field=field)
+
+
+def return_free_memory() -> bool:
+    """Hand the memory this process has freed back to the system, where the C library keeps
+    it (glibc's ``malloc_trim``): after a long piece of work, so that the next one does not
+    start on top of the last one's fragments (docs/method.md, "A long video"). True where
+    it was done."""
+    import ctypes
+    import ctypes.util
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):       # not glibc: nothing to do
+        return False
+    trim.argtypes = [ctypes.c_size_t]
+    trim(0)
+    return True

@@ -78,7 +78,8 @@ def write_filter_outputs(folder, scene, result, *, keep_all: bool = False,
 
 def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: bool = False,
                  copy_images: bool = False, force: bool = False, progress=None,
-                 log=None) -> dict:
+                 log=None, windows: bool | None = None, workers: int | None = None,
+                 address: str | None = None) -> dict:
     """Load the bundle ``scene``, filter it and write the outputs into the folder ``out``.
 
     Parameters
@@ -98,6 +99,15 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         ``progress(stage, done, total)``, passed to the filter.
     log : callable, optional
         ``log(line)``, told the scene's size once it is loaded (``clearsplat filter`` prints it).
+    windows : bool, optional
+        Filter the capture in windows of consecutive views (:func:`clearsplat.batch.
+        filter_windows`: memory bounded by a window). Default: from
+        :data:`~clearsplat.batch.windows.WINDOWS_FROM` views on, where the bundle's PLY is
+        binary with ``view_id`` and no report is asked for, and whenever ``workers`` or
+        ``address`` is given.
+    workers, address : optional
+        Run the windows as Ray tasks: on a local instance with ``workers`` CPUs, or on the
+        cluster at ``address``.
 
     Returns
     -------
@@ -116,6 +126,18 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
 
     t0 = time.perf_counter()
     check_output_folder(out, inputs=[scene], force=force)
+    if windows is None:     # Ray asked for: the windows are what it spreads
+        windows = workers is not None or address is not None or \
+            (not report and _windowed(scene))
+    if windows:
+        from .windows import filter_windows
+        if report:
+            raise ClearsplatError("a capture filtered in windows has no report (it would "
+                                  "render the whole capture at once); leave out --report",
+                                  field="--report")
+        return filter_windows(scene, out, config=config, keep_all=keep_all,
+                              copy_images=copy_images, force=force, workers=workers,
+                              address=address, progress=progress, log=log)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         # A PLY without view_id: each Gaussian's view recovered from the images (one line).
@@ -148,6 +170,21 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
     return {"gaussians": s["gaussians"], "removed": s["removed"], "accepted": s["accepted"],
             "candidates": len(s["candidates"]), "seconds": time.perf_counter() - t0,
             "warnings": shown}
+
+
+def _windowed(scene) -> bool:
+    """Whether the bundle ``scene`` is filtered in windows by default: enough views, and a
+    binary PLY with ``view_id`` that can be read in pieces."""
+    from ..io import load_cameras
+    from ..io.ply import PlyRows
+    from .windows import uses_windows
+    try:
+        cameras, _ = load_cameras(scene)
+        if not uses_windows(len(cameras)):
+            return False
+        return "view_id" in PlyRows(Path(scene) / "gaussians.ply").dtype.names
+    except ClearsplatError:
+        return False        # the whole-capture path reports the bad input
 
 
 def ply_vertex_count(path) -> int | None:

@@ -15,6 +15,16 @@ def add_parser(sub) -> None:
     add_filter_output_args(f, into="--out")
     f.add_argument("--force", action="store_true",
                    help="replace an --out folder that an earlier clearsplat run wrote")
+    w = f.add_argument_group(
+        "long captures", "from 96 views on the capture is filtered in windows of about 32 "
+        "consecutive views (memory bounded by a window; a killed run resumes where it "
+        "stopped); these spread the windows over Ray")
+    w.add_argument("--num-cpus", type=int, metavar="N",
+                   help="run the windows as tasks of a local Ray instance with N CPUs")
+    w.add_argument("--address",
+                   help="run the windows on a running Ray cluster: 'auto', HOST:PORT or "
+                        "ray://HOST:PORT (the bundle and --out must be at the same paths on "
+                        "every node)")
     add_config_args(f)
     f.set_defaults(func=run)
 
@@ -26,7 +36,8 @@ def run(args) -> int:
     check_output_folder(args.out, inputs=[args.scene], force=args.force)
     r = filter_scene(args.scene, args.out, config=config_from_args(args),
                      keep_all=args.keep_all, report=args.report, copy_images=args.copy_images,
-                     force=args.force, progress=Bar(), log=print)
+                     force=args.force, progress=Bar(), log=print, workers=args.num_cpus,
+                     address=args.address)
     for message in r["warnings"]:
         warn(message)
     print(f"removed {r['removed']:,} of {r['gaussians']:,} Gaussians "

@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import ClearsplatError
 from ..scene import Gaussians
 
-__all__ = ["read_ply", "write_ply", "atomic_write_bytes", "RAW_PREFIX"]
+__all__ = ["read_ply", "write_ply", "atomic_write_bytes", "RAW_PREFIX", "PlyRows"]
 
 #: Prefix of the private ``Gaussians.extra`` keys holding raw on-disk columns.
 RAW_PREFIX = "__ply_raw__:"
@@ -672,3 +672,169 @@ def atomic_write_bytes(path, data) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+# ------------------------------------------------------------------------------------------------
+# a large file in pieces
+# ------------------------------------------------------------------------------------------------
+#: Rows per piece when a column or a selection is read from a :class:`PlyRows` file.
+PIECE_ROWS = 1 << 20
+
+
+class PlyRows:
+    """The vertex rows of a binary PLY file, read in pieces: never the whole file at once.
+
+    What a long capture's filter needs to hold one window of views (:mod:`clearsplat.batch.
+    windows`): one column of every row (``view_id``), the Gaussians of chosen rows, and a copy
+    of chosen rows into a new file, each within :data:`PIECE_ROWS` rows of the file at a time.
+    Rows are decoded exactly as :func:`read_ply` decodes them, and :meth:`write_rows` writes
+    the chosen rows' bytes as :func:`write_ply` writes them after :func:`read_ply` (the same
+    header, little-endian).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``binary_little_endian`` or ``binary_big_endian`` 3DGS PLY (an ASCII file cannot be
+        read in pieces: :func:`read_ply` reads it whole).
+
+    Attributes
+    ----------
+    count : int
+        The number of vertices.
+    dtype : numpy.dtype
+        One vertex record as the file stores it.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        try:
+            with open(self.path, "rb") as f:
+                head = f.read(1 << 16)
+                while b"end_header" not in head and len(head) < (1 << 24):
+                    more = f.read(1 << 16)
+                    if not more:
+                        break
+                    head += more
+            size = self.path.stat().st_size
+        except FileNotFoundError:
+            raise ClearsplatError("file not found", path=self.path, field="gaussians") from None
+        except OSError as e:
+            raise ClearsplatError(f"cannot read file ({e.strerror})", path=self.path,
+                                  field="gaussians") from None
+        header = _parse_header(head, self.path)
+        if header.fmt == "ascii":
+            raise ClearsplatError("an ASCII PLY cannot be read in pieces; convert it to a "
+                                  "binary one", path=self.path, field="header")
+        order = _FORMATS[header.fmt]
+        offset = header.body_offset
+        for el in header.elements:
+            if el.name == "vertex":
+                break
+            if any(p.is_list for p in el.props):
+                raise ClearsplatError(
+                    f"cannot skip element {el.name!r} with list properties that comes before "
+                    "the vertex element in a binary file; move the vertex element first",
+                    path=self.path, field=el.name)
+            offset += el.count * sum(np.dtype(p.dtype).itemsize for p in el.props)
+        self._props = el.props
+        self._types = {p.name: p.token for p in el.props}
+        self._comments = header.comments
+        self.count = el.count
+        self.dtype = np.dtype([(p.name, order + p.dtype) for p in el.props])
+        self._offset = offset
+        if size - offset < self.count * self.dtype.itemsize:
+            raise ClearsplatError(
+                f"file too short: the header promises {self.count} vertices of "
+                f"{self.dtype.itemsize} bytes but only {size - offset} bytes follow "
+                "(truncated file, or the count in the header is wrong)",
+                path=self.path, field="vertex")
+
+    def __len__(self) -> int:
+        return self.count
+
+    def _records(self, start: int, stop: int) -> np.ndarray:
+        with open(self.path, "rb") as f:
+            f.seek(self._offset + start * self.dtype.itemsize)
+            rows = np.fromfile(f, dtype=self.dtype, count=stop - start)
+        if rows.shape[0] != stop - start:
+            raise ClearsplatError("file shorter than its header says", path=self.path,
+                                  field="vertex")
+        return rows
+
+    def _pieces(self, rows: np.ndarray):
+        """``(records, local)`` per block of :data:`PIECE_ROWS` file rows that holds any of
+        ``rows`` (increasing int64): the block's records and the places of those rows in it."""
+        if rows.size == 0:
+            return
+        first = int(rows[0]) // PIECE_ROWS * PIECE_ROWS
+        for a in range(first, int(rows[-1]) + 1, PIECE_ROWS):
+            lo, hi = np.searchsorted(rows, [a, a + PIECE_ROWS])
+            if hi > lo:
+                part = rows[lo:hi]
+                yield self._records(int(part[0]), int(part[-1]) + 1), part - part[0]
+
+    def column(self, name: str) -> np.ndarray:
+        """(count,) one property of every vertex, native byte order (read a piece at a time)."""
+        if name not in self.dtype.names:
+            raise ClearsplatError("property is missing", path=self.path, field=name)
+        out = np.empty(self.count, self.dtype[name].newbyteorder("="))
+        for a in range(0, self.count, PIECE_ROWS):
+            b = min(a + PIECE_ROWS, self.count)
+            out[a:b] = self._records(a, b)[name]
+        return out
+
+    def select(self, rows) -> np.ndarray:
+        """The records of ``rows`` ((M,) increasing int indices) in that order."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if rows.size and (rows[0] < 0 or rows[-1] >= self.count or (np.diff(rows) <= 0).any()):
+            raise ValueError("rows must be increasing indices of the file's vertices")
+        out = np.empty(rows.size, self.dtype)
+        at = 0
+        for records, local in self._pieces(rows):
+            picked = records[local]
+            out[at:at + picked.shape[0]] = picked
+            at += picked.shape[0]
+        return out
+
+    def read(self, rows) -> tuple[Gaussians, np.ndarray | None, np.ndarray | None]:
+        """The Gaussians of ``rows`` ((M,) increasing indices), ``view_id`` and ``pixel_id``,
+        exactly as :func:`read_ply` decodes those rows."""
+        records = self.select(rows)
+        cols = _split_columns(records, self._props)
+        del records
+        cols = {k: v.astype(v.dtype.newbyteorder("="), copy=False) for k, v in cols.items()}
+        return _columns_to_gaussians(cols, self._types, self._comments, self.path)
+
+    def write_rows(self, path, rows, *, zero_opacity=None) -> None:
+        """Write ``rows`` ((M,) increasing indices) into a new PLY at ``path``, a piece at a
+        time: the bytes :func:`write_ply` writes for those rows after :func:`read_ply`.
+        ``zero_opacity``: (M,) bool, rows written with opacity 0 (the logit of
+        :data:`OPACITY_EPS`, as :func:`write_ply` writes it)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        little = np.dtype([(n, "<" + self.dtype[n].str[1:]) for n in self.dtype.names])
+        lines = ["ply", "format binary_little_endian 1.0", *self._comments,
+                 f"element vertex {rows.size}"]
+        lines += [f"property {self._types[p.name]} {p.name}" for p in self._props]
+        lines.append("end_header")
+        header = ("\n".join(lines) + "\n").encode("ascii")
+        path = Path(path)
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+        try:
+            with open(tmp, "wb") as f:
+                f.write(header)
+                at = 0
+                for a in range(0, rows.size, PIECE_ROWS):
+                    part = rows[a:a + PIECE_ROWS]
+                    block = self.select(part).astype(little)
+                    if zero_opacity is not None:
+                        zero = np.asarray(zero_opacity[a:a + part.size], bool)
+                        if zero.any():
+                            block["opacity"][zero] = _logit_from_opacity(
+                                np.zeros(int(zero.sum()), np.float32)
+                            ).astype(block["opacity"].dtype)
+                    block.tofile(f)
+                    at += part.size
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()

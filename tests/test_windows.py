@@ -1,0 +1,338 @@
+"""A long capture in windows of consecutive views (:mod:`clearsplat.batch.windows`).
+
+Checked against obviously-correct references: the windows' removals against each window's
+scene filtered on its own in memory; one window holding every view against the whole-capture
+filter, file for file; the pieces read from and written to a PLY against ``read_ply`` and
+``write_ply``; a run killed with SIGKILL and started again against an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clearsplat import ClearsplatError, FilterConfig, filter_distractors
+from clearsplat.batch import filter_scene, filter_windows, plan_windows
+from clearsplat.batch.windows import _resolved
+from clearsplat.cli import main
+from clearsplat.io import load_scene, read_ply, write_ply
+from clearsplat.io import ply as ply_module
+from clearsplat.io.ply import PlyRows
+from clearsplat.review import write_removal
+
+HAVE_RAY = importlib.util.find_spec("ray") is not None
+OPTIONS = {"window": 4, "margin": 2}
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    """A 14-frame video-like street (passers-by over several frames) as a bundle."""
+    from clearsplat.synth import make_world, reconstruct
+    root = tmp_path_factory.mktemp("windows")
+    world = make_world("street", num_views=14, height=32, width=48, seed=3,
+                       transients="video")
+    reconstruct(world.cameras, world.images, world.depths, seed=3).save(root / "video")
+    return root / "video"
+
+
+@pytest.fixture(scope="module")
+def windowed(video, tmp_path_factory):
+    out = tmp_path_factory.mktemp("windowed") / "out"
+    filter_windows(video, out, **OPTIONS)
+    return out
+
+
+@pytest.mark.parametrize("views, window, margin", [(1, 32, 8), (5, 32, 8), (14, 4, 2),
+                                                   (100, 32, 8), (300, 32, 8), (97, 7, 0),
+                                                   (1000, 32, 8)])
+def test_plan_judges_every_view_once_with_its_margin(views, window, margin):
+    plan = plan_windows(views, window=window, margin=margin)
+    judged = [v for w in plan for v in w.judged]
+    assert judged == list(range(views))
+    sizes = [len(w.judged) for w in plan]
+    assert max(sizes) - min(sizes) <= 1
+    assert len(plan) == max(1, round(views / window))
+    for w in plan:
+        assert w.held == range(max(0, w.judged.start - margin),
+                               min(views, w.judged.stop + margin))
+
+
+def _big_endian_copy(src: Path, dest: Path) -> None:
+    data = src.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].replace(b"binary_little_endian", b"binary_big_endian")
+    rows = PlyRows(src)
+    table = np.frombuffer(data, dtype=rows.dtype, count=rows.count, offset=end)
+    dest.write_bytes(header + table.astype(rows.dtype.newbyteorder(">")).tobytes())
+
+
+@pytest.mark.parametrize("order", ["little", "big"])
+def test_rows_read_in_pieces_as_read_ply_reads_them(video, tmp_path, monkeypatch, order):
+    path = video / "gaussians.ply"
+    if order == "big":
+        _big_endian_copy(path, tmp_path / "big.ply")
+        path = tmp_path / "big.ply"
+    monkeypatch.setattr(ply_module, "PIECE_ROWS", 1000)    # many pieces
+    whole, view_id, pixel_id = read_ply(path)
+    rows = PlyRows(path)
+    assert rows.count == len(whole)
+    assert np.array_equal(rows.column("view_id"), view_id)
+    rng = np.random.default_rng(0)
+    for pick in (np.arange(len(whole)), np.sort(rng.choice(len(whole), 777, replace=False)),
+                 np.array([5]), np.zeros(0, np.int64)):
+        g, v, p = rows.read(pick)
+        ref = whole.subset(pick)
+        for name in ("means", "scales", "quats", "opacities", "sh"):
+            assert np.array_equal(getattr(g, name), getattr(ref, name)), name
+        assert np.array_equal(v, view_id[pick]) and np.array_equal(p, pixel_id[pick])
+
+
+def test_rows_written_in_pieces_as_write_ply_writes_them(video, tmp_path, monkeypatch):
+    monkeypatch.setattr(ply_module, "PIECE_ROWS", 1000)
+    scene = load_scene(video)
+    removed = np.random.default_rng(1).random(len(scene)) < 0.3
+    rows = PlyRows(video / "gaussians.ply")
+    for keep_all in (False, True):
+        ref = tmp_path / f"ref-{keep_all}"
+        ref.mkdir()
+        write_removal(ref, scene, removed, keep_all=keep_all)
+        kept = np.arange(len(scene)) if keep_all else np.flatnonzero(~removed)
+        rows.write_rows(tmp_path / "kept.ply", kept,
+                        zero_opacity=removed[kept] if keep_all else None)
+        assert (tmp_path / "kept.ply").read_bytes() == (ref / "gaussians.ply").read_bytes()
+        rows.write_rows(tmp_path / "gone.ply", np.flatnonzero(removed))
+        assert (tmp_path / "gone.ply").read_bytes() == (ref / "removed.ply").read_bytes()
+    with pytest.raises(ValueError):
+        rows.select([3, 2])
+
+
+def test_windows_remove_what_each_window_decides_on_its_own(video, windowed):
+    """Reference: each window's views cut from the whole scene in memory, filtered, and the
+    accepted candidates of the views it judges taken."""
+    scene = load_scene(video)
+    config = _resolved(FilterConfig(), scene.num_views)
+    expected = np.zeros(len(scene), bool)
+    for w in plan_windows(scene.num_views, **OPTIONS):
+        rows = np.flatnonzero(np.isin(scene.view_id, list(w.held)))
+        part = dataclasses.replace(
+            scene.subset(rows), view_id=(scene.view_id[rows] - w.held.start).astype(np.int32),
+            cameras=scene.cameras[w.held.start:w.held.stop],
+            images=scene.images[w.held.start:w.held.stop])
+        result = filter_distractors(part, config=config)
+        for c in result.candidates:
+            if c.view + w.held.start in w.judged and c.accepted:
+                expected[rows[c.expanded]] = True
+    removed = np.load(windowed / "removed.npy")
+    assert expected.any()
+    assert np.array_equal(removed, expected)
+    summary = json.loads((windowed / "summary.json").read_text())
+    assert summary["removed"] == int(removed.sum())
+    assert [w["judged"] for w in summary["windows"]] == [[0, 4], [4, 7], [7, 10], [10, 14]]
+    assert sum(w["removed"] for w in summary["windows"]) >= int(removed.sum())
+    assert all(c["view"] in range(14) for c in summary["candidates"])
+    assert [c["index"] for c in summary["candidates"]] == list(range(len(summary["candidates"])))
+
+
+def test_one_window_holding_every_view_is_the_whole_filter(video, tmp_path):
+    filter_windows(video, tmp_path / "one", window=100)
+    filter_scene(video, tmp_path / "whole", windows=False)
+    for name in ("gaussians.ply", "removed.npy", "removed.ply", "candidates.npz",
+                 "cameras.json", ".clearsplat.json"):
+        assert (tmp_path / "one" / name).read_bytes() == \
+            (tmp_path / "whole" / name).read_bytes(), name
+    a, b = (json.loads((tmp_path / n / "summary.json").read_text()) for n in ("one", "whole"))
+    assert [(w["judged"], w["held"], w["removed"]) for w in a.pop("windows")] == \
+        [([0, 14], [0, 14], b["removed"])]
+    a.pop("timings"), b.pop("timings")
+    assert a == b
+
+
+def test_keep_all_writes_every_row_with_the_removed_transparent(video, windowed, tmp_path):
+    filter_windows(video, tmp_path / "all", keep_all=True, **OPTIONS)
+    removed = np.load(windowed / "removed.npy")
+    g, _, _ = read_ply(tmp_path / "all" / "gaussians.ply")
+    whole, _, _ = read_ply(video / "gaussians.ply")
+    assert len(g) == len(whole)
+    assert (g.opacities[removed] < 1e-6).all()
+    assert np.array_equal(g.opacities[~removed], whole.opacities[~removed])
+
+
+_KILLED = """
+import os, signal, sys
+import clearsplat.batch.windows as w
+real = w.filter_window
+def dying(job):
+    if job["index"] == 2:           # windows 0 and 1 are written: SIGKILL, as a user's kill -9
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(job)
+w.filter_window = dying
+w.filter_windows(sys.argv[1], sys.argv[2], window=4, margin=2)
+"""
+
+
+def test_a_killed_run_resumes_and_loses_nothing(video, windowed, tmp_path, capsys):
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-c", _KILLED, str(video), str(out)])
+    assert run.returncode == -signal.SIGKILL
+    assert not out.exists()
+    state = tmp_path / ".out.clearsplat-windows"
+    assert sorted(p.name for p in state.glob("window-*.npz")) == ["window-0.npz",
+                                                                 "window-1.npz"]
+    lines = []
+    filter_windows(video, out, log=lines.append, **OPTIONS)
+    assert "resuming: 2 of 4 windows done in an interrupted run" in lines
+    assert not state.exists()
+    for name in ("gaussians.ply", "removed.npy", "removed.ply", "candidates.npz"):
+        assert (out / name).read_bytes() == (windowed / name).read_bytes(), name
+
+
+def test_a_changed_config_starts_afresh(video, tmp_path):
+    out = tmp_path / "out"
+    state = tmp_path / ".out.clearsplat-windows"
+    subprocess.run([sys.executable, "-c", _KILLED, str(video), str(out)])
+    assert len(list(state.glob("window-*.npz"))) == 2
+    lines = []
+    filter_windows(video, out, config=FilterConfig.preset("video"), log=lines.append,
+                   **OPTIONS)
+    assert not any(line.startswith("resuming") for line in lines)
+
+
+def test_a_second_run_into_the_same_out_is_refused(video, windowed, capsys):
+    before = (windowed / "removed.npy").read_bytes()
+    with pytest.raises(ClearsplatError, match="--force"):
+        filter_windows(video, windowed, **OPTIONS)
+    assert (windowed / "removed.npy").read_bytes() == before
+
+
+def test_a_failing_window_is_reported_alone_and_the_others_kept(video, tmp_path, monkeypatch):
+    import clearsplat.batch.windows as w
+    real = w.filter_window
+
+    def failing(job):
+        if job["index"] == 1:
+            raise RuntimeError("disk on fire")
+        return real(job)
+
+    monkeypatch.setattr(w, "filter_window", failing)
+    with pytest.raises(ClearsplatError, match=r"window 1 \(views 4..6\) failed: RuntimeError: "
+                                              r"disk on fire; 1 of 4 windows failed"):
+        filter_windows(video, tmp_path / "out", **OPTIONS)
+    state = tmp_path / ".out.clearsplat-windows"
+    assert sorted(p.name for p in state.glob("window-*.npz")) == [
+        "window-0.npz", "window-2.npz", "window-3.npz"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_bad_view_ids_get_one_line(video, tmp_path):
+    bad = tmp_path / "bad"
+    import shutil
+    shutil.copytree(video, bad)
+    g, view_id, pixel_id = read_ply(bad / "gaussians.ply")
+    view_id[10] = 99
+    write_ply(bad / "gaussians.ply", g, view_id=view_id, pixel_id=pixel_id)
+    with pytest.raises(ClearsplatError, match="view id 99 at vertex 10 is out of range") as e:
+        filter_windows(bad, tmp_path / "out", **OPTIONS)
+    assert e.value.field == "view_id"
+    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / ".out.clearsplat-windows").exists()
+
+
+def test_the_command_uses_windows_from_the_threshold(video, tmp_path, monkeypatch, capsys):
+    import clearsplat.batch.windows as w
+    monkeypatch.setattr(w, "WINDOWS_FROM", 10)
+    monkeypatch.setattr(w, "WINDOW_VIEWS", 7)
+    assert main(["filter", str(video), "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "in 2 windows of about 7 views" in out
+    assert len(json.loads((tmp_path / "out" / "summary.json").read_text())["windows"]) == 2
+
+
+@pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed (pip install 'clearsplat[batch]')")
+def test_windows_on_ray_remove_the_same(video, windowed, tmp_path):
+    lines, ticks = [], []
+    filter_windows(video, tmp_path / "ray", workers=2, log=lines.append,
+                   progress=lambda stage, done, total: ticks.append((stage, done, total)),
+                   **OPTIONS)
+    for name in ("gaussians.ply", "removed.npy", "removed.ply", "candidates.npz"):
+        assert (tmp_path / "ray" / name).read_bytes() == (windowed / name).read_bytes(), name
+    assert ticks == [("windows", k, 4) for k in range(5)]
+
+
+def test_a_windowed_output_is_reviewed_as_any_other(windowed, tmp_path):
+    """Its candidates (numbered across the windows, in the capture's rows) feed `edit`."""
+    from clearsplat.review import read_candidates
+    summary = json.loads((windowed / "summary.json").read_text())
+    sets = read_candidates(windowed / "candidates.npz", num_gaussians=summary["gaussians"],
+                           count=len(summary["candidates"]))
+    k = next(c["index"] for c in summary["candidates"] if c["accepted"])
+    assert main(["edit", str(windowed), "--reject", str(k), "--out",
+                 str(tmp_path / "edited")]) == 0
+    before = np.load(windowed / "removed.npy")
+    after = np.load(tmp_path / "edited" / "removed.npy")
+    restored = np.flatnonzero(before & ~after)
+    expanded = sets.expanded[sets.expanded_offsets[k]:sets.expanded_offsets[k + 1]]
+    assert restored.size and np.isin(restored, expanded).all()
+    assert not (after & ~before).any()
+
+
+def test_an_order_that_does_not_follow_the_path_is_told(video, tmp_path):
+    """A video's frames break no order; the same frames shuffled break most of it, and the
+    windowed run says so (a warning in the log and in summary.json)."""
+    from clearsplat.batch.windows import order_breaks
+    scene = load_scene(video)
+    assert not order_breaks(scene.cameras, margin=2).any()
+    perm = np.random.default_rng(0).permutation(scene.num_views)
+    assert order_breaks([scene.cameras[i] for i in perm], margin=2).mean() > 0.5
+    # Reference: the nearest camera by brute force, one view at a time, shuffled order.
+    cams = [scene.cameras[i] for i in perm]
+    centres = [c.camera_to_world[:3, 3] for c in cams]
+    found = order_breaks(cams, margin=1)
+    for i in range(scene.num_views):
+        d = [np.inf if j == i else np.linalg.norm(centres[i] - centres[j])
+             for j in range(scene.num_views)]
+        assert found[i] == (abs(int(np.argmin(d)) - i) > 1)
+    shuffled = tmp_path / "shuffled"
+    inverse = np.argsort(perm)
+    g, view_id, pixel_id = read_ply(video / "gaussians.ply")
+    dataclasses.replace(scene, view_id=inverse[view_id].astype(np.int32),
+                        cameras=[scene.cameras[i] for i in perm],
+                        images=[scene.images[i] for i in perm]).save(shuffled)
+    lines = []
+    filter_windows(shuffled, tmp_path / "out", log=lines.append, **OPTIONS)
+    told = [line for line in lines if "does not follow the camera path" in line]
+    assert len(told) == 1
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert told[0] in summary["warnings"]
+
+
+@pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed (pip install 'clearsplat[batch]')")
+def test_a_window_larger_than_every_ray_node_gets_one_line(video, tmp_path, monkeypatch):
+    import clearsplat.batch.windows as w
+    monkeypatch.setattr(w, "_window_memory", lambda windows, *a: [10 ** 15] * len(windows))
+    with pytest.raises(ClearsplatError, match=r"a window needs about 1000000.0 GB, the largest "
+                                              r"Ray node has") as e:
+        filter_windows(video, tmp_path / "out", workers=1, **OPTIONS)
+    assert e.value.field == "memory"
+    assert not (tmp_path / "out").exists()
+
+
+def test_each_window_asks_for_at_least_what_it_holds(video):
+    """The memory a window asks Ray for grows with its rows and covers reading them twice."""
+    from clearsplat.batch.windows import _window_memory
+    from clearsplat.io import load_cameras
+    cameras, _ = load_cameras(video)
+    rows = PlyRows(video / "gaussians.ply")
+    views = rows.column("view_id")
+    plan = plan_windows(len(cameras), **OPTIONS)
+    need = _window_memory(plan, views, cameras, rows.dtype.itemsize, FilterConfig())
+    held = [int(np.isin(views, list(w.held)).sum()) for w in plan]
+    assert all(m >= 2 * h * rows.dtype.itemsize for m, h in zip(need, held))
+    assert (np.argsort(need, kind="stable") == np.argsort(held, kind="stable")).all()
