@@ -21,7 +21,7 @@ import pytest
 
 from clearsplat import ClearsplatError, FilterConfig, filter_distractors
 from clearsplat.batch import filter_scene, filter_windows, plan_windows
-from clearsplat.batch.windows import _resolved
+from clearsplat.filter.pipeline import resolve_auto
 from clearsplat.cli import main
 from clearsplat.io import load_scene, read_ply, write_ply
 from clearsplat.io import ply as ply_module
@@ -118,7 +118,7 @@ def test_windows_remove_what_each_window_decides_on_its_own(video, windowed):
     """Reference: each window's views cut from the whole scene in memory, filtered, and the
     accepted candidates of the views it judges taken."""
     scene = load_scene(video)
-    config = _resolved(FilterConfig(), scene.num_views)
+    config = resolve_auto(FilterConfig(), scene.num_views)
     expected = np.zeros(len(scene), bool)
     for w in plan_windows(scene.num_views, **OPTIONS):
         rows = np.flatnonzero(np.isin(scene.view_id, list(w.held)))
@@ -336,3 +336,40 @@ def test_each_window_asks_for_at_least_what_it_holds(video):
     held = [int(np.isin(views, list(w.held)).sum()) for w in plan]
     assert all(m >= 2 * h * rows.dtype.itemsize for m, h in zip(need, held))
     assert (np.argsort(need, kind="stable") == np.argsort(held, kind="stable")).all()
+
+
+@pytest.mark.parametrize("views", [2, 7, 8, 23, 24, 40])
+@pytest.mark.parametrize("preset", ["default", "video", "fast", "exact"])
+def test_windows_resolve_auto_options_as_the_filter_does(views, preset, monkeypatch):
+    """What each window runs: the choices filter_distractors makes for the whole capture."""
+    from clearsplat import Camera
+    from clearsplat.filter import pipeline
+    from clearsplat.scene import Gaussians, Scene
+
+    class Seen(Exception):
+        pass
+
+    seen = {}
+    monkeypatch.setattr(pipeline, "view_plan",
+                        lambda scene, **kw: seen.update(kw) or None)
+
+    def stop(scene, config, extractor, backend, report, *, hold, plan, **kw):
+        seen["hold"] = hold
+        raise Seen
+
+    monkeypatch.setattr(pipeline, "run_round", stop)
+    cams = [Camera(K=[[8, 0, 8], [0, 8, 8], [0, 0, 1]],
+                   camera_to_world=np.eye(4), width=16, height=16)
+            for _ in range(views)]
+    g = Gaussians(np.zeros((views, 3), np.float32) + [0, 0, 2], np.full((views, 3), 0.1,
+                  np.float32), np.tile(np.float32([1, 0, 0, 0]), (views, 1)),
+                  np.full(views, 0.5, np.float32), np.zeros((views, 1, 3), np.float32))
+    scene = Scene(g, np.arange(views, dtype=np.int32), np.zeros(views, np.int64), cams,
+                  [np.zeros((16, 16, 3), np.float32)] * views)
+    config = FilterConfig.preset(preset)
+    with pytest.raises(Seen):
+        filter_distractors(scene, config=config)
+    auto = resolve_auto(config, views)
+    assert (seen["neighbours"], seen["verify_views"]) == (auto.neighbours, auto.verify_views)
+    assert seen["hold"] == (auto.rounds > 1)
+    assert "auto" not in (auto.rounds, auto.neighbours, auto.verify_views)

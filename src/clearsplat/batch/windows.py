@@ -89,19 +89,6 @@ def uses_windows(num_views: int) -> bool:
     return num_views >= WINDOWS_FROM
 
 
-def _resolved(config, num_views: int):
-    """``config`` with its ``"auto"`` options set as the whole capture resolves them, so that
-    every window runs what the capture would."""
-    from ..filter.neighbours import dense_options
-    from ..filter.pipeline import _SECOND_ROUND_MIN_VIEWS
-    neighbours, verify_views = dense_options(num_views, config.neighbours, config.verify_views)
-    rounds = config.rounds
-    if rounds == "auto":
-        rounds = 2 if num_views >= _SECOND_ROUND_MIN_VIEWS else 1
-    return dataclasses.replace(config, neighbours=neighbours, verify_views=verify_views,
-                               rounds=rounds)
-
-
 def order_breaks(cameras, *, margin: int = MARGIN_VIEWS) -> np.ndarray:
     """(V,) bool: the views whose nearest camera (by centre) is more than ``margin`` places
     away in input order. In a capture whose order follows the camera path (a video) there
@@ -279,6 +266,7 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
         that failed (its views and the cause; the windows done are kept for a rerun).
     """
     from ..filter import FilterConfig
+    from ..filter.pipeline import resolve_auto
     from ..io.output import check_output_folder
 
     t0 = time.perf_counter()
@@ -300,7 +288,7 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
             "side)")
     report = progress or (lambda stage, d, total: None)
     report("windows", len(done), len(windows))
-    resolved = _resolved(config, len(cameras))
+    resolved = resolve_auto(config, len(cameras))
     memory = _window_memory(windows, views, cameras, ply.dtype.itemsize, resolved)
     del views
     jobs = [{"index": w.index, "judged": [w.judged.start, w.judged.stop],

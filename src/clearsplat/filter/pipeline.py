@@ -20,6 +20,8 @@ next round                             :mod:`.rounds`
 
 from __future__ import annotations
 
+import dataclasses
+
 import warnings
 
 import numpy as np
@@ -42,12 +44,28 @@ from .state import Progress, RoundState
 from .verify import (individual_tests, make_verifier, range_masks, second_range_tests,
                      seen_by_verifiers)
 
-__all__ = ["Candidate", "FilterResult", "filter_distractors", "run_round"]
+__all__ = ["Candidate", "FilterResult", "filter_distractors", "run_round", "resolve_auto"]
 
 #: ``rounds="auto"`` runs a second round from this many views on (measured on the realism
 #: scenarios: +0.58 dB at 16 views, +0.18 dB at 8 for 1.6 times the time, +0.02 dB at 4; with
 #: ``min_relative_score`` it also keeps the 8-view recall, docs/method.md).
 _SECOND_ROUND_MIN_VIEWS = 8
+
+
+def resolve_auto(config: FilterConfig, num_views: int) -> FilterConfig:
+    """``config`` with its ``"auto"`` choices (``rounds``, ``neighbours``, ``verify_views``)
+    made as :func:`filter_distractors` makes them for a scene of ``num_views`` views (the
+    same rules, :data:`_SECOND_ROUND_MIN_VIEWS` and :func:`~clearsplat.filter.neighbours.
+    dense_options`): what a part of a larger capture runs so as to run what the whole would
+    (:mod:`clearsplat.batch.windows`)."""
+    rounds = config.rounds
+    if rounds == "auto":
+        rounds = 2 if num_views >= _SECOND_ROUND_MIN_VIEWS else 1
+    neighbours, verify_views = dense_options(num_views, config.neighbours, config.verify_views)
+    return dataclasses.replace(config, rounds=rounds, neighbours=neighbours,
+                               verify_views=verify_views)
+
+
 _NOTHING_VISIBLE = ("no Gaussian is in front of any input camera (wrong axes or poses?): "
                     "nothing can be verified, the scene is returned unchanged")
 
