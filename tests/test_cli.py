@@ -435,6 +435,14 @@ def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, c
                       .replace(" ambiguous", "").split(", "))
     assert got + ambiguous == n and got > 0
     assert np.load(tmp_path / "out" / "removed.npy").shape == (n,)
+    # ... and the commands that show a filter output take the same bundle with it.
+    cam = tmp_path / "cam.json"
+    frame = json.loads((bundle / "cameras.json").read_text())["frames"][0]
+    cam.write_text(json.dumps(frame))
+    with pytest.warns(UserWarning, match=r"ambiguous \(the PLY has no view_id\)"):
+        assert main(["render", str(bundle), "--camera", str(cam), "--filtered",
+                     str(tmp_path / "out"), "--out", str(tmp_path / "renders")]) == 0
+    assert list((tmp_path / "renders").glob("*.png"))
 
 
 def test_a_ply_without_view_id_and_images_is_refused(bundle, tmp_path, capsys):

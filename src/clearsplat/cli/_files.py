@@ -73,6 +73,9 @@ def removed_mask(folder, n: int | None, *, required: bool = True):
 def load_scene_and_keep(scene_path, filtered=None):
     """The scene (images if present) and the Gaussians kept by the filter output ``filtered``.
 
+    A PLY without ``view_id`` is associated from the images as ``clearsplat filter`` does it
+    (the same views, one warning line), so that a filter output of it applies here.
+
     Returns
     -------
     scene : Scene
@@ -81,7 +84,7 @@ def load_scene_and_keep(scene_path, filtered=None):
     """
     from ..io import load_scene
 
-    scene = load_scene(scene_path, require_images=False)
+    scene = load_scene(scene_path, require_images=False, associate=True)
     if filtered is None:
         return scene, None
     if not Path(filtered).is_dir():
