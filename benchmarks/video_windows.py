@@ -5,6 +5,7 @@ Usage::
     python benchmarks/video_windows.py --frames 100,300 --resolution 128x192
     python benchmarks/video_windows.py --frames 100 --modes whole,windows
     python benchmarks/video_windows.py --frames 1000 --modes windows,ray --no-quality
+    python benchmarks/video_windows.py --frames 100 --modes windows --reach
 
 Per frame count, the video-like street (``make_world("street", transients="video")``: each
 passer-by stays for 2-5 consecutive frames, seed 0) is reconstructed by the stand-in backbone
@@ -163,6 +164,25 @@ def score(bundle: Path, out: Path) -> dict:
             "removed": removed}
 
 
+def reach(bundle: Path) -> str:
+    """How far, in input order, each view's neighbourhood reaches in the whole capture's plan
+    (``neighbours="auto"``, mutual verification views): what the windows' margin must hold."""
+    from clearsplat.filter import FilterConfig
+    from clearsplat.filter.neighbours import view_plan
+    from clearsplat.filter.pipeline import resolve_auto
+    from clearsplat.io import load_scene
+
+    scene = load_scene(bundle, require_images=False)
+    auto = resolve_auto(FilterConfig(), scene.num_views)
+    plan = view_plan(scene, neighbours=auto.neighbours, verify_views=auto.verify_views,
+                     num_verify_views=auto.num_verify_views)
+    hood = np.array([np.abs(np.flatnonzero(h) - j).max() for j, h in enumerate(plan.hoods)])
+    verify = np.array([np.abs(np.array(v) - i).max() for i, v in enumerate(plan.verifiers)])
+    return (f"reach in frames: verification views at most {verify.max()}; the views a "
+            f"camera's renders hold: median {np.median(hood):g}, at most {hood.max()}, "
+            f"within 8 for {int((hood <= 8).sum())} of {hood.size} views")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", default="100,300")
@@ -172,6 +192,8 @@ def main(argv=None) -> int:
     p.add_argument("--cache", default="video-cache", help="bundles are kept here")
     p.add_argument("--no-quality", action="store_true", help="time and memory only")
     p.add_argument("--json", help="also write the rows here")
+    p.add_argument("--reach", action="store_true",
+                   help="also print how far each view's neighbourhood reaches (in frames)")
     args = p.parse_args(argv)
     height, width = (int(x) for x in args.resolution.lower().split("x"))
     cache = Path(args.cache)
@@ -186,6 +208,8 @@ def main(argv=None) -> int:
             make_bundle(bundle, frames, height, width)
             print(f"(made {bundle} in {time.perf_counter() - t:.0f} s)", flush=True)
         n = int(np.load(bundle / "truth.npy", mmap_mode="r").shape[0])
+        if args.reach:
+            print(f"{frames} frames: {reach(bundle)}", flush=True)
         first = None
         for mode in args.modes.split(","):
             out = cache / f"out-{frames}-{height}x{width}-{mode}"
