@@ -176,6 +176,8 @@ def reach(bundle: Path) -> str:
     auto = resolve_auto(FilterConfig(), scene.num_views)
     plan = view_plan(scene, neighbours=auto.neighbours, verify_views=auto.verify_views,
                      num_verify_views=auto.num_verify_views)
+    if plan is None or plan.hoods is None:
+        return f"every camera's renders hold all {scene.num_views} views (below 24 views)"
     hood = np.array([np.abs(np.flatnonzero(h) - j).max() for j, h in enumerate(plan.hoods)])
     verify = np.array([np.abs(np.array(v) - i).max() for i, v in enumerate(plan.verifiers)])
     return (f"reach in frames: verification views at most {verify.max()}; the views a "

@@ -373,3 +373,21 @@ def test_windows_resolve_auto_options_as_the_filter_does(views, preset, monkeypa
     assert (seen["neighbours"], seen["verify_views"]) == (auto.neighbours, auto.verify_views)
     assert seen["hold"] == (auto.rounds > 1)
     assert "auto" not in (auto.rounds, auto.neighbours, auto.verify_views)
+
+
+def test_the_long_video_benchmark_runs_end_to_end(tmp_path, capsys):
+    """``benchmarks/video_windows.py`` on a tiny capture: both modes in fresh processes, the
+    same removals (one window holds every view), the quality columns and the reach."""
+    import importlib.util
+    path = Path(__file__).parents[1] / "benchmarks" / "video_windows.py"
+    spec = importlib.util.spec_from_file_location("video_windows", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--frames", "6", "--resolution", "32x48", "--modes", "windows,whole",
+                       "--cache", str(tmp_path), "--reach",
+                       "--json", str(tmp_path / "rows.json")]) == 0
+    out = capsys.readouterr().out
+    assert "6 frames: every camera's renders hold all 6 views" in out
+    rows = json.loads((tmp_path / "rows.json").read_text())
+    assert [r["mode"] for r in rows] == ["windows", "whole"] and rows[1]["same"] == "yes"
+    assert all(0 <= r["recall"] <= 1 and r["peak_gb"] > 0 for r in rows)
