@@ -9,9 +9,7 @@ random order.
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
-import os
 
 import numpy as np
 import pytest
@@ -29,20 +27,9 @@ from clearsplat.adapters.associate import (
 )
 from clearsplat.cameras import look_at
 from clearsplat.synth import distractor_truth, make_world, reconstruct
+from scripts import load_script
 
-BENCHMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                          "benchmarks")
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location(
-        "association_quality", os.path.join(BENCHMARKS, "association_quality.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-AQ = _bench()
+AQ = load_script("benchmarks/association_quality.py")
 
 
 @pytest.fixture(scope="module", params=["street", "object"])

@@ -3,15 +3,14 @@
 each written as the upstream code writes it (``tests/upstream_exports.py``) from a synthetic
 prediction of known views and pixels, and imported with the association recovered."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 import upstream_exports as up
+from scripts import load_script
 from clearsplat import Camera
 from clearsplat.adapters import scales_quats_to_covariance
 from clearsplat.adapters._common import quats_to_matrices
@@ -437,11 +436,7 @@ def test_longlrm_pruned_bfloat16_export_is_associated_from_the_images(tmp_path, 
 
 
 def _video_scene(family):
-    spec = importlib.util.spec_from_file_location(
-        "association_quality", Path(__file__).parents[1] / "benchmarks" /
-        "association_quality.py")
-    aq = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(aq)
+    aq = load_script("benchmarks/association_quality.py")
     return aq.video_capture(family, num_views=8, height=48, width=80, seed=1)
 
 
@@ -560,11 +555,7 @@ def files(world, tmp_path_factory):
     camera_params.json) and images on disk."""
     _, scene, _ = world
     root = tmp_path_factory.mktemp("models")
-    (root / "images").mkdir()
-    names = [f"images/{i:03d}.png" for i in range(V)]
-    for name, img in zip(names, scene.images):
-        write_image(root / name, img)
-    save_cameras(root / "cameras.json", scene.cameras, names)
+    names = _write_views(root, scene.cameras, scene.images)
     save_cameras(root / "vggt.json", _vggt_cameras(scene.cameras), names)
     _write_camera_params(root / "camera_params.json", _vggt_cameras(scene.cameras))
     up.da3_export_to_gs_ply(root / "da3.ply", _da3_prediction(scene))
@@ -583,12 +574,18 @@ def files(world, tmp_path_factory):
 def other(other_world, tmp_path_factory):
     """Cameras and images of another world."""
     root = tmp_path_factory.mktemp("other")
-    (root / "images").mkdir()
-    names = [f"images/{i:03d}.png" for i in range(V)]
-    for name, img in zip(names, other_world.images):
-        write_image(root / name, img)
-    save_cameras(root / "cameras.json", other_world.cameras, names)
+    _write_views(root, other_world.cameras, other_world.images)
     return root
+
+
+def _write_views(root, cameras, images) -> list:
+    """``images/NNN.png`` and ``cameras.json`` in ``root``; the image names."""
+    (root / "images").mkdir()
+    names = [f"images/{i:03d}.png" for i in range(len(images))]
+    for name, img in zip(names, images):
+        write_image(root / name, img)
+    save_cameras(root / "cameras.json", cameras, names)
+    return names
 
 
 @pytest.mark.parametrize("format,cameras", [("da3", "cameras.json"),

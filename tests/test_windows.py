@@ -378,11 +378,8 @@ def test_windows_resolve_auto_options_as_the_filter_does(views, preset, monkeypa
 def test_the_long_video_benchmark_runs_end_to_end(tmp_path, capsys):
     """``benchmarks/video_windows.py`` on a tiny capture: both modes in fresh processes, the
     same removals (one window holds every view), the quality columns and the reach."""
-    import importlib.util
-    path = Path(__file__).parents[1] / "benchmarks" / "video_windows.py"
-    spec = importlib.util.spec_from_file_location("video_windows", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    from scripts import load_script
+    bench = load_script("benchmarks/video_windows.py")
     assert bench.main(["--frames", "6", "--resolution", "32x48", "--modes", "windows,whole",
                        "--cache", str(tmp_path), "--reach",
                        "--json", str(tmp_path / "rows.json")]) == 0
@@ -391,3 +388,28 @@ def test_the_long_video_benchmark_runs_end_to_end(tmp_path, capsys):
     rows = json.loads((tmp_path / "rows.json").read_text())
     assert [r["mode"] for r in rows] == ["windows", "whole"] and rows[1]["same"] == "yes"
     assert all(0 <= r["recall"] <= 1 and r["peak_gb"] > 0 for r in rows)
+
+
+def test_candidate_sets_concatenate_as_one_packing_of_all():
+    """Reference: every candidate packed at once; and the arrays round trip."""
+    from clearsplat.filter import Candidate
+    from clearsplat.review import CandidateSets
+    rng = np.random.default_rng(4)
+
+    def candidate(k):
+        pixels = rng.random((12, 9)) < (0.3 if k % 4 else 0.0)      # some empty regions
+        g = np.sort(rng.choice(500, rng.integers(0, 30), replace=False))
+        e = None if k % 3 == 0 else np.sort(rng.choice(500, rng.integers(0, 60),
+                                                        replace=False))
+        return Candidate(k, int(rng.integers(0, 7)), 1, pixels, g, e)
+
+    cands = [candidate(k) for k in range(11)]
+    whole = CandidateSets.from_candidates(cands, num_gaussians=500)
+    parts = [CandidateSets.from_candidates(c, num_gaussians=500)
+             for c in (cands[:4], [], cands[4:5], cands[5:])]
+    joined = CandidateSets.concatenate(parts, num_gaussians=500)
+    for name, a in whole.arrays().items():
+        b = joined.arrays()[name]
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    back = CandidateSets.from_arrays(whole.arrays())
+    assert all(np.array_equal(a, back.arrays()[k]) for k, a in whole.arrays().items())

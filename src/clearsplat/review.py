@@ -130,6 +130,37 @@ class CandidateSets:
                    np.array([c.expanded is not None for c in candidates], bool),
                    np.array(boxes, np.int32).reshape(-1, 4), bits, b_off)
 
+    @classmethod
+    def from_arrays(cls, arrays: dict) -> CandidateSets:
+        """The set whose :meth:`arrays` these are (not checked: :func:`read_candidates`
+        checks a file)."""
+        return cls(int(arrays["num_gaussians"]),
+                   **{name: np.asarray(arrays[name]) for name in cls.__dataclass_fields__
+                      if name != "num_gaussians"})
+
+    @classmethod
+    def concatenate(cls, sets, *, num_gaussians: int) -> CandidateSets:
+        """The candidates of ``sets`` one after the other, their Gaussian indices already of
+        the same input of ``num_gaussians`` (the windows of a long capture)."""
+        n = int(num_gaussians)
+        dtype = np.int32 if n < 2 ** 31 else np.int64
+
+        def items(name, dt):
+            return _ragged([flat[off[k]:off[k + 1]] for s in sets
+                            for flat, off in [(getattr(s, name), getattr(s, name + "_offsets"))]
+                            for k in range(len(s))], dt)
+
+        def joined(name, dt):
+            return np.concatenate([np.zeros(0, dt)] + [getattr(s, name) for s in sets]
+                                  ).astype(dt)
+
+        g, g_off = items("gaussians", dtype)
+        e, e_off = items("expanded", dtype)
+        bits, b_off = items("bits", np.uint8)
+        boxes = np.concatenate([np.zeros((0, 4), np.int32)] + [s.boxes for s in sets])
+        return cls(n, joined("view", np.int32), g, g_off, e, e_off,
+                   joined("has_expanded", bool), boxes.astype(np.int32), bits, b_off)
+
     # -- per candidate -----------------------------------------------------------------------
     def own(self, k: int) -> np.ndarray:
         """(M,) int64: [C_k], candidate ``k``'s Gaussians."""

@@ -41,6 +41,7 @@ import numpy as np
 
 from .._memory import return_free_memory
 from ..errors import ClearsplatError
+from ..io.bundle import bundle_camera_file
 
 __all__ = ["Window", "plan_windows", "filter_windows", "uses_windows", "order_breaks",
            "WINDOW_VIEWS", "MARGIN_VIEWS", "WINDOWS_FROM"]
@@ -134,7 +135,7 @@ def _load_window(bundle: Path, state: Path, window: Window):
     held = list(window.held)
     images = [read_image(image_paths[i], expected_size=(cameras[i].width, cameras[i].height))
               for i in held]
-    settings = load_render_settings(_camera_path(bundle))
+    settings = load_render_settings(bundle_camera_file(bundle))
     scene = Scene(gaussians, (view_id - window.held.start).astype(np.int32), pixel_id,
                   [cameras[i] for i in held], images, settings)
     return scene, rows
@@ -186,17 +187,11 @@ def _fingerprint(bundle: Path, config, windows: list[Window]) -> dict:
     """What a resumed run must share with the run that wrote the state folder."""
     ply = bundle / "gaussians.ply"
     st = ply.stat()
-    cams = hashlib.sha256(Path(_camera_path(bundle)).read_bytes()).hexdigest()
+    cams = hashlib.sha256(Path(bundle_camera_file(bundle)).read_bytes()).hexdigest()
     return {"bundle": os.fspath(bundle.resolve()), "ply_size": st.st_size,
             "ply_mtime_ns": st.st_mtime_ns, "cameras": cams,
             "config": json.loads(json.dumps(config.to_dict())),
             "windows": [w.record() for w in windows]}
-
-
-def _camera_path(bundle: Path) -> Path:
-    from ..io.bundle import CAMERAS_FILE, TRANSFORMS_FILE
-    return next((bundle / n for n in (CAMERAS_FILE, TRANSFORMS_FILE) if (bundle / n).is_file()),
-                bundle / CAMERAS_FILE)
 
 
 def _begin_state(state: Path, fingerprint: dict, views: np.ndarray, log) -> set:
@@ -355,7 +350,7 @@ def _checked_input(bundle: Path):
     if missing:
         raise ClearsplatError(f"frame {missing[0]} image file not found ({len(missing)} of "
                               f"{len(image_paths)} missing); the filter needs the input images",
-                              path=_camera_path(bundle), field=f"frames[{missing[0]}]")
+                              path=bundle_camera_file(bundle), field=f"frames[{missing[0]}]")
     return ply, cameras, image_paths, views.astype(np.int32)
 
 
@@ -374,12 +369,14 @@ def _order_warning(cameras, windows: list[Window], margin: int) -> list[str]:
 def _merged(state: Path, windows: list[Window], count: int, config, warned: list):
     """The windows' files merged: the (N,) removal, ``summary.json`` and the candidates
     (numbered across the windows, in window order)."""
+    from ..review import CandidateSets
     removed = np.zeros(count, bool)
     parts, records, summaries = [], [], []
     for w in windows:
         with np.load(state / f"window-{w.index}.npz") as z:
             removed[z["removed"]] = True
-            parts.append({k[2:]: z[k] for k in z.files if k.startswith("c_")})
+            parts.append(CandidateSets.from_arrays(
+                {k[2:]: z[k] for k in z.files if k.startswith("c_")}))
             records.extend(json.loads(str(z["records"])))
             summaries.append(json.loads(str(z["done"])))
     for k, r in enumerate(records):
@@ -394,13 +391,13 @@ def _merged(state: Path, windows: list[Window], count: int, config, warned: list
                "windows": [dict(w.record(), removed=s["removed"], seconds=round(s["seconds"], 3))
                            for w, s in zip(windows, summaries)],
                "warnings": warned}
-    return removed, summary, _merged_candidates(parts, count)
+    return removed, summary, CandidateSets.concatenate(parts, num_gaussians=count)
 
 
 def _write_outputs(out: Path, bundle: Path, ply, removed, summary: dict, sets, cameras,
                    image_paths, *, keep_all: bool, copy_images: bool, force: bool) -> None:
     """What ``clearsplat filter`` writes, the rows copied from the input a piece at a time."""
-    from ..io import save_bundle_cameras
+    from ..io import load_render_settings, save_bundle_cameras
     from ..io.output import output_folder
     from ..review import CANDIDATES_FILE, REMOVED_FILE, write_candidates
 
@@ -413,12 +410,7 @@ def _write_outputs(out: Path, bundle: Path, ply, removed, summary: dict, sets, c
         write_candidates(tmp / CANDIDATES_FILE, sets, num_gaussians=ply.count)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
         save_bundle_cameras(tmp, cameras, image_paths, located_at=out, copy_images=copy_images,
-                            render=_render_settings(bundle))
-
-
-def _render_settings(bundle: Path):
-    from ..io import load_render_settings
-    return load_render_settings(_camera_path(bundle))
+                            render=load_render_settings(bundle_camera_file(bundle)))
 
 
 def _summed(timings: list) -> dict:
@@ -427,28 +419,6 @@ def _summed(timings: list) -> dict:
         for k, v in t.items():
             out[k] = out.get(k, 0.0) + v
     return {k: round(v, 4) for k, v in out.items()}
-
-
-def _merged_candidates(parts: list, n: int):
-    """One :class:`~clearsplat.review.CandidateSets` from the windows' (in window order)."""
-    from ..review import CandidateSets
-
-    def ragged(name):
-        values = [p[name] for p in parts]
-        offsets = [p[name + "_offsets"] for p in parts]
-        shift = np.cumsum([0] + [v.size for v in values[:-1]])
-        off = np.concatenate([[0]] + [o[1:] + s for o, s in zip(offsets, shift)])
-        return np.concatenate(values) if values else np.zeros(0), off.astype(np.int64)
-
-    g, g_off = ragged("gaussians")
-    e, e_off = ragged("expanded")
-    bits, b_off = ragged("bits")
-    dtype = np.int32 if n < 2 ** 31 else np.int64
-    return CandidateSets(n, np.concatenate([p["view"] for p in parts]).astype(np.int32),
-                         g.astype(dtype), g_off, e.astype(dtype), e_off,
-                         np.concatenate([p["has_expanded"] for p in parts]).astype(bool),
-                         np.concatenate([p["boxes"] for p in parts]).reshape(-1, 4)
-                         .astype(np.int32), bits.astype(np.uint8), b_off)
 
 
 def _run(jobs: list, workers, address, tick) -> list:

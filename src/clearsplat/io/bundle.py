@@ -493,6 +493,14 @@ def save_bundle_cameras(folder, cameras, image_paths, *, located_at=None,
 # ------------------------------------------------------------------------------------------------
 # scenes
 # ------------------------------------------------------------------------------------------------
+def bundle_camera_file(folder) -> Path:
+    """The camera file of the bundle ``folder``: ``cameras.json``, else ``transforms.json``
+    (``cameras.json`` when neither is there, for the message that names it)."""
+    folder = Path(folder)
+    return next((folder / n for n in (CAMERAS_FILE, TRANSFORMS_FILE) if (folder / n).is_file()),
+                folder / CAMERAS_FILE)
+
+
 def load_scene(path, *, require_images: bool = True, associate: bool = False) -> Scene:
     """Load a scene bundle.
 
@@ -527,8 +535,7 @@ def load_scene(path, *, require_images: bool = True, associate: bool = False) ->
                               "gaussians.ply)" + ("" if bundle.exists() else "; not found"),
                               path=bundle, field="bundle")
     cameras, image_paths = load_cameras(bundle)
-    camera_file = next(bundle / n for n in (CAMERAS_FILE, TRANSFORMS_FILE)
-                       if (bundle / n).is_file())
+    camera_file = bundle_camera_file(bundle)
     ply = bundle / GAUSSIANS_FILE
     if not ply.is_file():
         raise ClearsplatError("Gaussians file not found", path=ply, field="gaussians")

@@ -822,7 +822,6 @@ class PlyRows:
         try:
             with open(tmp, "wb") as f:
                 f.write(header)
-                at = 0
                 for a in range(0, rows.size, PIECE_ROWS):
                     part = rows[a:a + PIECE_ROWS]
                     block = self.select(part).astype(little)
@@ -833,7 +832,6 @@ class PlyRows:
                                 np.zeros(int(zero.sum()), np.float32)
                             ).astype(block["opacity"].dtype)
                     block.tofile(f)
-                    at += part.size
             os.replace(tmp, path)
         finally:
             if tmp.exists():
