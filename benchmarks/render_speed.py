@@ -10,6 +10,7 @@ Usage::
 
     python benchmarks/render_speed.py [--repeats 5] [--threads 1 2]
     python benchmarks/render_speed.py --layers       # render_layers against two per pass
+    python benchmarks/render_speed.py --rows 1       # one row a step on an AVX-512 machine
 
 Prints, per thread count, the median over the 8 cameras of the median milliseconds of a full
 render (wall clock, and the process CPU time it used), of prepare alone (projection, depth
@@ -22,6 +23,9 @@ With ``--layers``, instead: every camera renders each of the other seven views' 
 own (as the filter's reveal reference does), once with ``PreparedView.render_layers`` (one pass
 over the tile lists) and once two per ``render_pair`` (the route of the other backends); the
 medians over cameras of their median milliseconds, and whether the results are equal.
+
+``--rows 1`` makes the compositing take one row of pixels a step where the machine would take
+two (AVX-512; ``clearsplat._core.rows_per_step()``): the same bits, for a comparison.
 """
 
 from __future__ import annotations
@@ -141,7 +145,13 @@ def main() -> None:
                         help="thread counts to time (default: 1 and all cores)")
     parser.add_argument("--layers", action="store_true",
                         help="time render_layers against two layers per render_pair instead")
+    parser.add_argument("--rows", type=int, choices=(1, 2), default=None,
+                        help="the compositing's rows of pixels per step (default: the "
+                             "machine's, 2 with AVX-512)")
     args = parser.parse_args()
+    from clearsplat import _core
+    _core.set_rows_per_step(args.rows or 0)
+    print(f"compositing: {_core.rows_per_step()} row(s) of pixels a step")
     threads = args.threads or sorted({1, max_threads()})
     if args.layers:
         layer_speed(args.repeats)

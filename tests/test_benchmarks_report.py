@@ -190,3 +190,18 @@ def test_quick_run_writes_a_page(tmp_path):
     assert "| `one-round` | `default+rounds=1` |" in text
     assert "48x80, 4 views, object, scenario `plain`, seed 0" in text
     assert text.count("\n") <= 600
+
+
+def test_filter_versus_runs_both_interpreters_pair_by_pair(capsys):
+    # This checkout against itself on a tiny capture: one row per case, a ratio per pair and
+    # the same removals on both sides.
+    from scripts import load_script
+
+    versus = load_script("benchmarks/filter_versus.py")
+    assert versus.main(["--other", sys.executable, "--views", "3", "--family", "object",
+                        "--resolution", "48x64", "--pairs", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("filter time, A: ") and "against B: " in lines[0]
+    row = lines[-1].split()
+    assert row[:2] == ["object", "3"] and row[-1] == "True"
+    assert len(row) == 2 + 2 + 2 + 1 + 1 and 0.1 < float(row[-2]) < 10

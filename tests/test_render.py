@@ -428,8 +428,8 @@ def test_render_layers_in_tiles_equal_the_whole_renders_there(world, threads):
     for route in (view.render_layers, lambda *a, **k: _TiledView.render_layers(view, *a, **k)):
         part = route(code, tiles=tiles, background=(0.2, 0.3, 0.4))
         assert len(part) == len(whole) == 3
-        for got, ref in zip(part, whole):
-            for a, b in zip(got, ref):
+        for got, want in zip(part, whole):
+            for a, b in zip(got, want):
                 rows_a, rows_b = a.reshape(listed.size, -1), b.reshape(listed.size, -1)
                 np.testing.assert_array_equal(rows_a[listed], rows_b[listed])
                 if route is view.render_layers:
@@ -591,6 +591,78 @@ def test_thread_count_does_not_change_results(world):
                       v3.rerender_tiles(keep=keep, removals=removals)):
         for x, y in zip(p1, p3):
             np.testing.assert_array_equal(x, y)
+
+
+def test_one_and_two_rows_per_step_give_the_same_bits():
+    # On AVX-512 machines the compositing takes two rows of pixels a step (sixteen lanes),
+    # elsewhere one: every kernel must give the same bits either way. Odd image sizes, tiles cut
+    # by the border and boxes ending on a tile's last row (the lone-row step) are all in.
+    from clearsplat import _core
+
+    _core.set_rows_per_step(2)
+    if _core.rows_per_step() != 2:
+        _core.set_rows_per_step(0)
+        pytest.skip("this machine has no AVX-512: only the one-row kernels run")
+    rng = np.random.default_rng(5)
+    g = random_gaussians(rng, 6000, k=4, spread=1.0)
+    g.scales[:] *= rng.uniform(0.05, 1.0, size=(len(g), 1))
+    cam = make_camera(101, 75, f=(80.0, 85.0))
+    scene = Scene(g, np.zeros(len(g), np.int32), None, [cam])
+    n = len(g)
+    keep = rng.uniform(size=n) < 0.9
+    code = rng.integers(-1, 4, size=n)
+    removals = [np.flatnonzero(rng.uniform(size=n) < p) for p in (0.002, 0.05)]
+    mask = rng.uniform(size=(cam.height, cam.width)) < 0.5
+    floor = rng.uniform(size=n) < 0.7
+
+    def everything():
+        view = prepare(scene, cam, num_threads=2)
+        base = view.render(keep=keep, background=(0.2, 0.3, 0.4))
+        out = [*base, *[a for r in view.render_pair(keep=keep) for a in r],
+               *[a for r in view.render_layers(code) for a in r]]
+        for with_base in (None, base):
+            for patch in view.rerender_tiles(keep=keep, removals=removals, base=with_base,
+                                             background=(0.2, 0.3, 0.4)):
+                out += list(patch[1:])
+        out += list(view.contributions(mask, keep=keep))
+        out += list(view.pruned(floor).render(keep=floor | keep))
+        return out
+
+    try:
+        two = everything()
+        _core.set_rows_per_step(1)
+        assert _core.rows_per_step() == 1
+        one = everything()
+    finally:
+        _core.set_rows_per_step(0)
+    assert len(one) == len(two) > 20
+    for a, b in zip(one, two):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        assert a.tobytes() == b.tobytes()
+    assert one[1].max() > 0.9          # alpha: not an empty picture
+
+
+def test_a_keep_mask_reused_changed_or_after_restrict_renders_anew(world):
+    # A view remembers the last keep mask it gathered (the filter renders with the same keep
+    # several times in a row): the same mask changed in place, a mask of another view, and a
+    # view restricted in place must each render as a fresh view does.
+    scene, rng = world
+    n = len(scene)
+    view, other = prepare(scene, scene.cameras[0]), prepare(scene, scene.cameras[1])
+    keep = rng.uniform(size=n) < 0.7
+    first = view.render(keep=keep)
+    assert_same(view.render(keep=keep), first)              # the remembered gather
+    keep[rng.uniform(size=n) < 0.3] = False                 # the same array, changed
+    assert_same(view.render(keep=keep), prepare(scene, scene.cameras[0]).render(keep=keep))
+    assert_same(other.render(keep=keep), prepare(scene, scene.cameras[1]).render(keep=keep))
+    sub = rng.uniform(size=n) < 0.8
+    view.render(keep=sub)
+    view.restrict(sub)
+    part = np.ones(int(sub.sum()), bool)
+    fresh = prepare(scene.subset(np.flatnonzero(sub)), scene.cameras[0])
+    assert_same(view.render(keep=part), fresh.render(keep=part))
+    part[::2] = False
+    assert_same(view.render(keep=part), fresh.render(keep=part))
 
 
 def test_empty_scene_and_empty_view():
@@ -790,7 +862,8 @@ def test_sort_index_equals_numpy_stable_sort():
 
 def test_removal_ids_from_indices_and_masks_agree(world):
     # A removal given as Gaussian indices (looked up through the sorted visible index) and as
-    # a bool mask (gathered over the visible Gaussians) must touch the same tiles.
+    # a bool mask (gathered over the visible Gaussians, or looked up when it holds few) must
+    # touch the same tiles.
     scene, rng = world
     # Mostly visible (a Gaussian -> visible id map) and a small part (a sorted index).
     for share in (0.9, 0.1):

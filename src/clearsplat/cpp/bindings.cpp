@@ -294,10 +294,11 @@ nb::ndarray<nb::numpy, uint8_t> take_mask(In<uint8_t> mask, In<int32_t> index, i
     int64_t bad = 0;
     {
         nb::gil_scoped_release release;
-        // A gather of scattered bytes: about 0.2 ms for 300,000 on one core, so threads pay
-        // only for very large views (on a busy machine a parallel region can wait a whole
-        // scheduler slice, 10 ms and more, for a thread that is not running).
-        const int threads = v < (int64_t(1) << 22) ? 1 : std::max(1, num_threads);
+        // A gather of scattered bytes: about 0.2 ms for 300,000 on one core and 2 ms for 1.5
+        // million (the mask then outgrows the cache), so threads pay from a million on (on a
+        // busy machine a parallel region can wait a whole scheduler slice, 10 ms and more,
+        // for a thread that is not running).
+        const int threads = v < (int64_t(1) << 20) ? 1 : std::max(1, num_threads);
 #pragma omp parallel for schedule(static) reduction(+ : bad) num_threads(threads)
         for (int64_t i = 0; i < v; ++i) {
             const int32_t k = idx[i];
@@ -388,6 +389,10 @@ NB_MODULE(_core, m) {
     m.def("live_entries", &live_entries, "splats"_a, "offsets"_a, "lists"_a, "floor"_a,
           "width"_a, "height"_a, "live"_a, "num_threads"_a,
           "Mark (in place) the tile-list entries a render of any superset of floor can use.");
+    m.def("rows_per_step", &cs::rows_per_step,
+          "Rows of pixels the compositing takes per step (2 with AVX-512, else 1).");
+    m.def("set_rows_per_step", &cs::set_rows_per_step, "rows"_a,
+          "Choose the compositing's rows per step (1 or 2; 0: by the machine). The same bits.");
     m.def("contributions", &contributions, "splats"_a, "offsets"_a, "lists"_a, "keep"_a,
           "mask"_a, "width"_a, "height"_a, "num_threads"_a,
           "Every added (pixel, id, weight) at the masked pixels.");

@@ -1,24 +1,65 @@
 // Per-tile front-to-back alpha compositing (the 3DGS forward pass), for full images, for
 // batched incremental tile patches and for the per-pixel contribution lists.
+//
+// The kernels below are compiled twice: here, eight lanes a step (one row of eight pixels;
+// clones for AVX2 and for any x86-64), into namespace cs::generic; and by composite_v4.cpp
+// with -march=x86-64-v4, sixteen lanes a step (two rows), into cs::v4. Every lane does the
+// same IEEE operations in both, so they give the same bits; the public functions at the end of
+// this file pick one by rows_per_step(). Whatever the second compilation could share with
+// this one is kept out of it: the helpers live in an anonymous namespace and the containers
+// use a local allocator, so no instruction of one compilation is linked into the other.
 #include <omp.h>
 
-#include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
+#include <new>
 #include <vector>
 
 #include "raster.h"
 #include "simd.h"
 
+#ifndef CS_COMPOSITE_VARIANT
+#define CS_COMPOSITE_VARIANT generic
+#define CS_ROWS 1
+#define CS_CLONES CS_TARGET_CLONES
+#endif
+
 namespace cs {
+namespace CS_COMPOSITE_VARIANT {
 
 namespace {
+
+CS_INLINE int imin(int a, int b) { return b < a ? b : a; }
+CS_INLINE int imax(int a, int b) { return a < b ? b : a; }
+
+// malloc-backed, 64-byte aligned (a TileState's rows): with a type of this file, every
+// container instantiation stays inside this compilation.
+template <class T>
+struct Allocator {
+    typedef T value_type;
+    Allocator() = default;
+    template <class U>
+    Allocator(const Allocator<U>&) {}
+    T* allocate(size_t n) {
+        const size_t bytes = (n * sizeof(T) + 63) / 64 * 64;
+        if (void* p = std::aligned_alloc(64, bytes > 0 ? bytes : 64)) return static_cast<T*>(p);
+        throw std::bad_alloc();
+    }
+    void deallocate(T* p, size_t) { std::free(p); }
+};
+template <class T, class U>
+bool operator==(const Allocator<T>&, const Allocator<U>&) { return true; }
+template <class T, class U>
+bool operator!=(const Allocator<T>&, const Allocator<U>&) { return false; }
+template <class T>
+using Vec = std::vector<T, Allocator<T>>;
 
 constexpr int64_t kPrefetch = 8;
 
 // Fetches a record ahead of use: 48-byte records straddle two cache lines at every other
 // position, so both ends are fetched.
-inline void prefetch_splat(const Splat* s) {
+CS_INLINE void prefetch_splat(const Splat* s) {
     __builtin_prefetch(s);
     __builtin_prefetch(reinterpret_cast<const char*>(s) + sizeof(Splat) - 1);
 }
@@ -44,8 +85,8 @@ struct TileState {
     void reset(const ViewData& v, int tile, const uint8_t* mask, const uint8_t* local = nullptr) {
         x0 = (tile % v.grid_w) * kTile;
         y0 = (tile / v.grid_w) * kTile;
-        w = std::min(kTile, v.width - x0);
-        h = std::min(kTile, v.height - y0);
+        w = imin(kTile, v.width - x0);
+        h = imin(kTile, v.height - y0);
         remaining = 0;
         for (int p = 0; p < kTilePixels; ++p) {
             const int lx = p % kTile, ly = p / kTile;
@@ -60,78 +101,131 @@ struct TileState {
     }
 };
 
-// Adds one Gaussian's contribution to the `active` lanes of pixels [p, p + 8) of `s`, the
-// 3DGS rule: where T would fall below 1e-4 the pixel stops without adding; elsewhere
-// C += c * alpha * T, D += z * alpha * T, T *= 1 - alpha.
-__attribute__((always_inline)) inline void accumulate(TileState& s, int p, i8 done, i8 active,
-                                                      f8 alpha, const Splat& gs, int32_t id,
-                                                      std::vector<Entry>* record) {
-    const f8 t = load(s.T + p);
-    const f8 test_t = t * (1.0f - alpha);
-    const i8 stop = active & (test_t < kMinTransmittance);
-    const i8 add = active & ~stop;
-    const f8 weight = alpha * t;
-    const f8 zero = splat(0.0f);
-    store(s.T + p, select(add, test_t, t));
-    store(s.r + p, load(s.r + p) + select(add, gs.rgb[0] * weight, zero));
-    store(s.g + p, load(s.g + p) + select(add, gs.rgb[1] * weight, zero));
-    store(s.b + p, load(s.b + p) + select(add, gs.rgb[2] * weight, zero));
-    store(s.d + p, load(s.d + p) + select(add, gs.depth * weight, zero));
+// One step's rows: lanes of row ly (and ly + 1 when `two`) from column `base` on, at tile
+// offset p = 16 ly + base; `dy` the vertical offsets of the Gaussian's centre from each lane's
+// pixel row, `valid` the lanes of rows inside the box.
+template <int R>
+struct Step {
+    typedef typename Rows<R>::F F;
+    typedef typename Rows<R>::I I;
+    int p;
+    bool two;
+    F dy;
+    I valid;
+};
+
+template <int R>
+CS_INLINE Step<R> rows_at(const Splat& gs, const TileState& s, int ly, int ly1, int base) {
+    Step<R> st;
+    st.p = ly * kTile + base;
+    const f8 dy0 = splat(gs.v - (float(s.y0 + ly) + 0.5f));
+    if constexpr (R == 1) {
+        st.two = false;
+        st.dy = dy0;
+        st.valid = splat_i(-1);
+    } else {
+        st.two = ly + 1 <= ly1;
+        st.dy = join(dy0, splat(gs.v - (float(s.y0 + ly + 1) + 0.5f)));
+        st.valid = join(splat_i(-1), splat_i(st.two ? -1 : 0));
+    }
+    return st;
+}
+
+// Adds one Gaussian's contribution to the `active` lanes of step `st` of `s`, the 3DGS rule:
+// where T would fall below 1e-4 the pixel stops without adding; elsewhere C += c * alpha * T,
+// D += z * alpha * T, T *= 1 - alpha.
+template <int R>
+CS_INLINE void accumulate(TileState& s, const Step<R>& st, typename Rows<R>::I done,
+                          typename Rows<R>::I active, typename Rows<R>::F alpha,
+                          const Splat& gs, int32_t id, Vec<Entry>* record) {
+    typedef typename Rows<R>::F F;
+    typedef typename Rows<R>::I I;
+    const int p = st.p;
+    const bool two = st.two;
+    const F t = load_rows<F>(s.T + p, kTile, two);
+    const F test_t = t * (1.0f - alpha);
+    const I stop = active & (test_t < kMinTransmittance);
+    const I add = active & ~stop;
+    const F weight = alpha * t;
+    const F zero = F{};
+    store_rows(s.T + p, kTile, two, select(add, test_t, t));
+    store_rows(s.r + p, kTile, two, load_rows<F>(s.r + p, kTile, two) + select(add, gs.rgb[0] * weight, zero));
+    store_rows(s.g + p, kTile, two, load_rows<F>(s.g + p, kTile, two) + select(add, gs.rgb[1] * weight, zero));
+    store_rows(s.b + p, kTile, two, load_rows<F>(s.b + p, kTile, two) + select(add, gs.rgb[2] * weight, zero));
+    store_rows(s.d + p, kTile, two, load_rows<F>(s.d + p, kTile, two) + select(add, gs.depth * weight, zero));
     if (any(stop)) {
-        store(s.done + p, done | stop);
+        store_rows(s.done + p, kTile, two, done | stop);
         s.remaining -= count(stop);
     }
     if (record)
-        for (int l = 0; l < 8; ++l)
-            if (add[l]) record->push_back(Entry{p + l, id, weight[l]});
+        for (int l = 0; l < 8 * R; ++l)
+            if (add[l]) record->push_back(Entry{p + (l & 7) + (l >> 3) * kTile, id, weight[l]});
 }
 
-// The lanes of pixels [p, p + 8) (row ly of the tile, p = 16 ly + base) that `gs` reaches:
-// inside its box columns [start, lx1], not `done`, power <= 0 and alpha >= 1/255, with their
-// alpha (capped at 0.99) in `alpha`. The 3DGS per-pixel test, shared by every compositing loop.
-__attribute__((always_inline)) inline i8 reached(const Splat& gs, const TileState& s, int start,
-                                                 int lx1, int base, float dy, i8 done,
-                                                 f8& alpha) {
-    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
-    const i8 col = iota + base;
-    i8 active = (col >= start) & (col <= lx1) & ~done;
+// The lanes of step `st` (columns base.. of its rows) that `gs` reaches: inside its box
+// columns [start, lx1] and rows, not `done`, power <= 0 and alpha >= 1/255, with their alpha
+// (capped at 0.99) in `alpha`. The 3DGS per-pixel test, shared by every compositing loop.
+template <int R>
+CS_INLINE typename Rows<R>::I reached(const Splat& gs, const TileState& s, const Step<R>& st,
+                                      int start, int lx1, int base, typename Rows<R>::I done,
+                                      typename Rows<R>::F& alpha) {
+    typedef typename Rows<R>::F F;
+    typedef typename Rows<R>::I I;
+    I col;
+    if constexpr (R == 1)
+        col = I{0, 1, 2, 3, 4, 5, 6, 7} + base;
+    else
+        col = I{0, 1, 2, 3, 4, 5, 6, 7, 0, 1, 2, 3, 4, 5, 6, 7} + base;
+    I active = (col >= start) & (col <= lx1) & ~done & st.valid;
     if (!any(active)) return active;
-    const f8 dx = gs.u - (__builtin_convertvector(col + s.x0, f8) + 0.5f);
-    const f8 power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
+    const F dx = gs.u - (__builtin_convertvector(col + s.x0, F) + 0.5f);
+    const F dy = st.dy;
+    const F power = -0.5f * (gs.ca * dx * dx + gs.cc * dy * dy) - gs.cb * dx * dy;
     active &= power <= 0.0f;
     alpha = gs.opacity * exp_nonpositive(power);
-    alpha = select(alpha < kMaxAlpha, alpha, splat(kMaxAlpha));
+    alpha = alpha < kMaxAlpha ? alpha : F{} + kMaxAlpha;
     return active & (alpha >= kMinAlpha);
 }
 
-// Adds `gs` (visible id `id`) to the pixels of its box inside the tile of `s`: the 3DGS rule per
-// pixel (reached, accumulate), eight pixels of a row at a time.
-__attribute__((always_inline)) inline void add_splat(TileState& s, const Splat& gs, int32_t id,
-                                                     std::vector<Entry>* record) {
-    const int lx0 = std::max(int(gs.bx0) - s.x0, 0), lx1 = std::min(int(gs.bx1) - s.x0, s.w - 1);
-    const int ly0 = std::max(int(gs.by0) - s.y0, 0), ly1 = std::min(int(gs.by1) - s.y0, s.h - 1);
-    for (int ly = ly0; ly <= ly1; ++ly) {
-        const float dy = gs.v - (float(s.y0 + ly) + 0.5f);
+// Calls f(step, start, base) for each step of R rows and eight columns of `gs`'s box inside the
+// tile of `s`, row by row (columns [lx0, lx1]: start is the first box column of the step,
+// base = min(start, 8) its first lane's, so that the eight lanes stay in the row).
+template <int R, class Fn>
+CS_INLINE void for_box(const Splat& gs, const TileState& s, Fn&& f) {
+    const int lx0 = imax(int(gs.bx0) - s.x0, 0), lx1 = imin(int(gs.bx1) - s.x0, s.w - 1);
+    const int ly0 = imax(int(gs.by0) - s.y0, 0), ly1 = imin(int(gs.by1) - s.y0, s.h - 1);
+    for (int ly = ly0; ly <= ly1; ly += R)
         for (int start = lx0; start <= lx1; start += 8) {
-            const int base = std::min(start, kTile - 8);  // the 8 lanes stay in the row
-            const int p = ly * kTile + base;
-            const i8 done = load(s.done + p);
-            f8 alpha;
-            const i8 active = reached(gs, s, start, lx1, base, dy, done, alpha);
-            if (any(active)) accumulate(s, p, done, active, alpha, gs, id, record);
+            const int base = imin(start, kTile - 8);
+            f(rows_at<R>(gs, s, ly, ly1, base), start, lx1, base);
         }
-    }
+}
+
+// Adds `gs` (visible id `id`) to the pixels of its box inside the tile of `s`: the 3DGS rule per
+// pixel (reached, accumulate), eight pixels of R rows at a time.
+template <int R>
+CS_INLINE void add_splat(TileState& s, const Splat& gs, int32_t id, Vec<Entry>* record) {
+    typedef typename Rows<R>::F F;
+    typedef typename Rows<R>::I I;
+    for_box<R>(gs, s, [&](const Step<R>& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
+        const I done = load_rows<I>(s.done + st.p, kTile, st.two);
+        F alpha;
+        const I active = reached<R>(gs, s, st, start, lx1, base, done, alpha);
+        if (any(active)) accumulate<R>(s, st, done, active, alpha, gs, id, record);
+    });
 }
 
 // Composites one tile's list into `s`, skipping ids with keep[id] == 0 and the ascending ids
 // in `removed`; appends every added contribution to `record` when given.
 //
 // Per pixel this is the 3DGS loop: skip power > 0 and alpha < 1/255, stop (without adding)
-// when T would fall below 1e-4, else add c * alpha * T. It runs eight pixels of a row at a
-// time over each Gaussian's pixel box; lanes outside the box or already done change nothing.
-CS_TARGET_CLONES
-void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int32_t* removed,
-                    int64_t num_removed, TileState& s, std::vector<Entry>* record) {
+// when T would fall below 1e-4, else add c * alpha * T. It runs eight pixels of a row (two rows
+// on AVX-512) at a time over each Gaussian's pixel box; lanes outside the box or already done
+// change nothing.
+template <int R>
+CS_INLINE void composite_tile_rows(const ViewData& v, int tile, const uint8_t* keep,
+                                   const int32_t* removed, int64_t num_removed, TileState& s,
+                                   Vec<Entry>* record) {
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
     int64_t ri = 0;
@@ -144,20 +238,27 @@ void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int3
             while (ri < num_removed && removed[ri] < id) ++ri;
             if (ri < num_removed && removed[ri] == id) continue;
         }
-        add_splat(s, v.splats[id], id, record);
+        add_splat<R>(s, v.splats[id], id, record);
     }
+}
+
+CS_CLONES
+void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int32_t* removed,
+                    int64_t num_removed, TileState& s, Vec<Entry>* record) {
+    composite_tile_rows<CS_ROWS>(v, tile, keep, removed, num_removed, s, record);
 }
 
 // The tile restricted to keep_a (all when null) into `a` and to keep_b into `b`, in one pass
 // over its list: the per-lane alpha is computed once and each state is updated exactly as
 // composite_tile would update it alone, so both equal their separate renders bit for bit.
-CS_TARGET_CLONES
-void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
-                         const uint8_t* keep_b, TileState& a, TileState& b) {
+template <int R>
+CS_INLINE void composite_tile_pair_rows(const ViewData& v, int tile, const uint8_t* keep_a,
+                                        const uint8_t* keep_b, TileState& a, TileState& b) {
+    typedef typename Rows<R>::F F;
+    typedef typename Rows<R>::I I;
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
-    const i8 iota = {0, 1, 2, 3, 4, 5, 6, 7};
-    const i8 all_done = iota == iota;
+    const I all_done = I{} - 1;
     for (int64_t k = 0; k < len && (a.remaining > 0 || b.remaining > 0); ++k) {
         if (k + kPrefetch < len) prefetch_splat(v.splats + list[k + kPrefetch]);
         const int32_t id = list[k];
@@ -165,34 +266,33 @@ void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
         const bool in_b = b.remaining > 0 && keep_b[id];
         if (!in_a && !in_b) continue;
         const Splat& gs = v.splats[id];
-        const int lx0 = std::max(int(gs.bx0) - a.x0, 0), lx1 = std::min(int(gs.bx1) - a.x0, a.w - 1);
-        const int ly0 = std::max(int(gs.by0) - a.y0, 0), ly1 = std::min(int(gs.by1) - a.y0, a.h - 1);
-        for (int ly = ly0; ly <= ly1; ++ly) {
-            const float dy = gs.v - (float(a.y0 + ly) + 0.5f);
-            for (int start = lx0; start <= lx1; start += 8) {
-                const int base = std::min(start, kTile - 8);
-                const int p = ly * kTile + base;
-                const i8 done_a = in_a ? load(a.done + p) : all_done;
-                const i8 done_b = in_b ? load(b.done + p) : all_done;
-                // The lanes either state still composites (a and b share the tile's origin).
-                f8 alpha;
-                const i8 act = reached(gs, a, start, lx1, base, dy, done_a & done_b, alpha);
-                if (!any(act)) continue;
-                const i8 act_a = act & ~done_a, act_b = act & ~done_b;
-                if (any(act_a)) accumulate(a, p, done_a, act_a, alpha, gs, id, nullptr);
-                if (any(act_b)) accumulate(b, p, done_b, act_b, alpha, gs, id, nullptr);
-            }
-        }
+        for_box<R>(gs, a, [&](const Step<R>& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
+            const I done_a = in_a ? load_rows<I>(a.done + st.p, kTile, st.two) : all_done;
+            const I done_b = in_b ? load_rows<I>(b.done + st.p, kTile, st.two) : all_done;
+            // The lanes either state still composites (a and b share the tile's origin).
+            F alpha;
+            const I act = reached<R>(gs, a, st, start, lx1, base, done_a & done_b, alpha);
+            if (!any(act)) return;
+            const I act_a = act & ~done_a, act_b = act & ~done_b;
+            if (any(act_a)) accumulate<R>(a, st, done_a, act_a, alpha, gs, id, nullptr);
+            if (any(act_b)) accumulate<R>(b, st, done_b, act_b, alpha, gs, id, nullptr);
+        });
     }
+}
+
+CS_CLONES
+void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
+                         const uint8_t* keep_b, TileState& a, TileState& b) {
+    composite_tile_pair_rows<CS_ROWS>(v, tile, keep_a, keep_b, a, b);
 }
 
 // The tile's Gaussians of each layer into that layer's state, in one pass over its list:
 // layer[id] in [0, num_layers) picks the state, a negative value none. Each state is updated
 // exactly as composite_tile updates it with keep = (layer == k), so each equals that render
 // bit for bit; a Gaussian is evaluated once, for its own layer.
-CS_TARGET_CLONES
-void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, TileState* states,
-                           int num_layers) {
+template <int R>
+CS_INLINE void composite_tile_layers_rows(const ViewData& v, int tile, const int8_t* layer,
+                                          TileState* states, int num_layers) {
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
     int live = 0;  // layers with a pixel still compositing
@@ -204,9 +304,15 @@ void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, Til
         const int l = layer[id];
         if (l < 0 || states[l].remaining <= 0) continue;
         TileState& s = states[l];
-        add_splat(s, v.splats[id], id, nullptr);
+        add_splat<R>(s, v.splats[id], id, nullptr);
         if (s.remaining <= 0) --live;
     }
+}
+
+CS_CLONES
+void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, TileState* states,
+                           int num_layers) {
+    composite_tile_layers_rows<CS_ROWS>(v, tile, layer, states, num_layers);
 }
 
 // Marks the entries of one tile's list that a render of any subset containing `floor` can
@@ -216,8 +322,11 @@ void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, Til
 // `floor` multiplies in more factors 1 - alpha <= 1, so its transmittance is never higher at
 // any point of the list (rounding is monotone) and a pixel stopped under `floor` has stopped
 // under it too, at the same entry or before: an entry not marked never changes such a render.
-CS_TARGET_CLONES
-void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, uint8_t* live) {
+template <int R>
+CS_INLINE void mark_tile_rows(const ViewData& v, int tile, const uint8_t* floor, TileState& s,
+                              uint8_t* live) {
+    typedef typename Rows<R>::F F;
+    typedef typename Rows<R>::I I;
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
     int64_t k = 0;
@@ -226,25 +335,23 @@ void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, 
         const int32_t id = list[k];
         const bool in_floor = floor[id] != 0;
         const Splat& gs = v.splats[id];
-        const int lx0 = std::max(int(gs.bx0) - s.x0, 0), lx1 = std::min(int(gs.bx1) - s.x0, s.w - 1);
-        const int ly0 = std::max(int(gs.by0) - s.y0, 0), ly1 = std::min(int(gs.by1) - s.y0, s.h - 1);
         bool used = false;
-        for (int ly = ly0; ly <= ly1; ++ly) {
-            const float dy = gs.v - (float(s.y0 + ly) + 0.5f);
-            for (int start = lx0; start <= lx1; start += 8) {
-                const int base = std::min(start, kTile - 8);
-                const int p = ly * kTile + base;
-                const i8 done = load(s.done + p);
-                f8 alpha;
-                const i8 active = reached(gs, s, start, lx1, base, dy, done, alpha);
-                if (!any(active)) continue;
-                used = true;
-                if (in_floor) accumulate(s, p, done, active, alpha, gs, id, nullptr);
-            }
-        }
+        for_box<R>(gs, s, [&](const Step<R>& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
+            const I done = load_rows<I>(s.done + st.p, kTile, st.two);
+            F alpha;
+            const I active = reached<R>(gs, s, st, start, lx1, base, done, alpha);
+            if (!any(active)) return;
+            used = true;
+            if (in_floor) accumulate<R>(s, st, done, active, alpha, gs, id, nullptr);
+        });
         live[k] = used ? 1 : 0;
     }
     for (; k < len; ++k) live[k] = 0;  // every pixel of the tile has stopped
+}
+
+CS_CLONES
+void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, uint8_t* live) {
+    mark_tile_rows<CS_ROWS>(v, tile, floor, s, live);
 }
 
 // Writes pixel p of the tile state: rgb = C + T bg, alpha = 1 - T, depth = D / alpha.
@@ -311,7 +418,7 @@ void composite_image_layers(const ViewData& v, const int8_t* layer, int num_laye
     const int64_t px = int64_t(v.width) * v.height;
 #pragma omp parallel num_threads(team_size(num_threads, num_tiles))
     {
-        std::vector<TileState> states(size_t(std::max(num_layers, 1)));
+        Vec<TileState> states(size_t(imax(num_layers, 1)));
 #pragma omp for schedule(dynamic, 1)
         for (int64_t j = 0; j < num_tiles; ++j) {
             const int tile = tiles ? tiles[j] : int(j);
@@ -338,10 +445,10 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
                        float* alpha, float* depth, int num_threads) {
     const int64_t num_tasks = task_offsets[num_removals];
     // Bucket each removal's ids by the tasks (tiles) whose lists they are in.
-    std::vector<std::vector<int32_t>> removed(num_tasks);
+    Vec<Vec<int32_t>> removed(num_tasks);
 #pragma omp parallel num_threads(team_size(num_threads, num_removals))
     {
-        std::vector<int32_t> local(size_t(v.num_tiles()), -1);
+        Vec<int32_t> local(size_t(v.num_tiles()), -1);
 #pragma omp for schedule(dynamic, 1)
         for (int64_t r = 0; r < num_removals; ++r) {
             for (int64_t j = task_offsets[r]; j < task_offsets[r + 1]; ++j) local[task_tiles[j]] = int32_t(j);
@@ -364,17 +471,17 @@ void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep
 #pragma omp for schedule(dynamic, 1)
         for (int64_t j = 0; j < num_tasks; ++j) {
             const int tile = task_tiles[j];
-            const std::vector<int32_t>& ids = removed[j];
+            const Vec<int32_t>& ids = removed[j];
             if (base_rgb) {
                 // Compositing visits a Gaussian only inside its pixel box, so outside the boxes
                 // of the removed Gaussians the result is the base render, bit for bit: only
                 // the pixels inside them are composited.
-                std::fill(changed, changed + kTilePixels, uint8_t(0));
+                std::memset(changed, 0, sizeof changed);
                 const int tx = (tile % v.grid_w) * kTile, ty = (tile / v.grid_w) * kTile;
                 for (const int32_t id : ids) {
                     const Splat& gs = v.splats[id];
-                    const int lx0 = std::max(int(gs.bx0) - tx, 0), lx1 = std::min(int(gs.bx1) - tx, kTile - 1);
-                    const int ly0 = std::max(int(gs.by0) - ty, 0), ly1 = std::min(int(gs.by1) - ty, kTile - 1);
+                    const int lx0 = imax(int(gs.bx0) - tx, 0), lx1 = imin(int(gs.bx1) - tx, kTile - 1);
+                    const int ly0 = imax(int(gs.by0) - ty, 0), ly1 = imin(int(gs.by1) - ty, kTile - 1);
                     for (int ly = ly0; ly <= ly1; ++ly)
                         for (int lx = lx0; lx <= lx1; ++lx) changed[ly * kTile + lx] = 1;
                 }
@@ -421,8 +528,8 @@ void live_entries(const ViewData& v, const uint8_t* floor, uint8_t* live, int nu
 ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_t* mask,
                             int num_threads) {
     const int num_tiles = v.num_tiles();
-    std::vector<std::vector<Entry>> per_tile(num_tiles);
-    std::vector<int64_t> offsets(int64_t(v.width) * v.height + 1, 0);  // count per pixel first
+    Vec<Vec<Entry>> per_tile(num_tiles);
+    Vec<int64_t> offsets(int64_t(v.width) * v.height + 1, 0);  // count per pixel first
 #pragma omp parallel num_threads(num_threads)
     {
         TileState s;
@@ -430,7 +537,7 @@ ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_
         for (int tile = 0; tile < num_tiles; ++tile) {
             s.reset(v, tile, mask);
             if (s.remaining == 0) continue;
-            std::vector<Entry>& out = per_tile[tile];
+            Vec<Entry>& out = per_tile[tile];
             composite_tile(v, tile, keep, nullptr, 0, s, &out);
             for (const Entry& e : out)
                 ++offsets[1 + int64_t(s.y0 + e.pixel_in_tile / kTile) * v.width + s.x0 +
@@ -441,7 +548,7 @@ ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_
     for (int64_t q = 0; q < num_pixels; ++q) offsets[q + 1] += offsets[q];
     ContribResult res;
     res.num = offsets[num_pixels];
-    const size_t cap = size_t(std::max<int64_t>(res.num, 1));
+    const size_t cap = size_t(res.num > 1 ? res.num : 1);
     res.pixel = static_cast<int64_t*>(std::malloc(cap * sizeof(int64_t)));
     res.id = static_cast<int32_t*>(std::malloc(cap * sizeof(int32_t)));
     res.weight = static_cast<float*>(std::malloc(cap * sizeof(float)));
@@ -459,5 +566,90 @@ ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_
     }
     return res;
 }
+
+}  // namespace CS_COMPOSITE_VARIANT
+
+#ifndef CS_COMPOSITE_V4
+// The public functions: the two-row kernels where the machine has AVX-512, else these.
+
+#ifdef CS_HAVE_V4
+namespace v4 {
+decltype(cs::composite_image) composite_image;
+decltype(cs::composite_image_pair) composite_image_pair;
+decltype(cs::composite_image_layers) composite_image_layers;
+decltype(cs::composite_patches) composite_patches;
+decltype(cs::live_entries) live_entries;
+decltype(cs::contributions) contributions;
+}  // namespace v4
+#define CS_PICK(f) (rows_per_step() == 2 ? v4::f : generic::f)
+#else
+#define CS_PICK(f) generic::f
+#endif
+
+namespace {
+int detect_rows() {
+#ifdef CS_HAVE_V4
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+                   __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq") &&
+                   __builtin_cpu_supports("avx512cd") && __builtin_cpu_supports("avx2") &&
+                   __builtin_cpu_supports("fma") && __builtin_cpu_supports("bmi2")
+               ? 2
+               : 1;
+#else
+    return 1;
+#endif
+}
+const int g_machine_rows = detect_rows();
+int g_rows = g_machine_rows;
+}  // namespace
+
+int rows_per_step() { return g_rows; }
+
+void set_rows_per_step(int rows) {
+    g_rows = rows == 1 || (rows == 2 && g_machine_rows == 2) ? rows : g_machine_rows;
+}
+
+void composite_image(const ViewData& v, const uint8_t* keep, const int32_t* tiles,
+                     int64_t num_tiles, const float bg[3], float* rgb, float* alpha,
+                     float* depth, int num_threads) {
+    CS_PICK(composite_image)(v, keep, tiles, num_tiles, bg, rgb, alpha, depth, num_threads);
+}
+
+void composite_image_pair(const ViewData& v, const uint8_t* keep_a, const uint8_t* keep_b,
+                          const int32_t* tiles, int64_t num_tiles, const float bg[3],
+                          float* rgb_a, float* alpha_a, float* depth_a, float* rgb_b,
+                          float* alpha_b, float* depth_b, int num_threads) {
+    CS_PICK(composite_image_pair)(v, keep_a, keep_b, tiles, num_tiles, bg, rgb_a, alpha_a,
+                                  depth_a, rgb_b, alpha_b, depth_b, num_threads);
+}
+
+void composite_image_layers(const ViewData& v, const int8_t* layer, int num_layers,
+                            const int32_t* tiles, int64_t num_tiles, const float bg[3],
+                            float* rgb, float* alpha, float* depth, int num_threads) {
+    CS_PICK(composite_image_layers)(v, layer, num_layers, tiles, num_tiles, bg, rgb, alpha,
+                                    depth, num_threads);
+}
+
+void composite_patches(const ViewData& v, const Rect* rects, const uint8_t* keep,
+                       const int64_t* removal_offsets, const int32_t* removal_ids,
+                       int64_t num_removals, const int64_t* task_offsets,
+                       const int32_t* task_tiles, const float bg[3], const float* base_rgb,
+                       const float* base_alpha, const float* base_depth, float* rgb,
+                       float* alpha, float* depth, int num_threads) {
+    CS_PICK(composite_patches)(v, rects, keep, removal_offsets, removal_ids, num_removals,
+                               task_offsets, task_tiles, bg, base_rgb, base_alpha, base_depth,
+                               rgb, alpha, depth, num_threads);
+}
+
+void live_entries(const ViewData& v, const uint8_t* floor, uint8_t* live, int num_threads) {
+    CS_PICK(live_entries)(v, floor, live, num_threads);
+}
+
+ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_t* mask,
+                            int num_threads) {
+    return CS_PICK(contributions)(v, keep, mask, num_threads);
+}
+#endif  // CS_COMPOSITE_V4
 
 }  // namespace cs

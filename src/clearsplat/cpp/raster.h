@@ -151,6 +151,12 @@ struct ContribResult {
 ContribResult contributions(const ViewData& v, const uint8_t* keep, const uint8_t* mask,
                             int num_threads);
 
+// Rows of pixels the compositing loops take per step: 2 on machines with AVX-512 (sixteen
+// lanes in one instruction), else 1. Every lane does the same IEEE operations either way, so
+// the results are the same bits; set_rows_per_step(1 or 2) chooses by hand, 0 by the machine.
+int rows_per_step();
+void set_rows_per_step(int rows);
+
 // Threads for a parallel loop over `items` independent pieces of work: never more than the
 // pieces, so that a loop over one or two tiles or removals runs on the calling thread (on a
 // busy machine a parallel region can wait a scheduler slice for a thread that is not running).

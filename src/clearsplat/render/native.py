@@ -16,6 +16,7 @@ Gaussian index), so rendering with ``keep`` equals rendering the subset scene bi
 
 from __future__ import annotations
 
+import weakref
 from typing import Sequence
 
 import numpy as np
@@ -28,6 +29,12 @@ from .base import (TILE, Contributions, RenderResult, TilePatch, _check_backgrou
                    _check_indices, _check_keep, _check_layers, _TiledView, sh_to_evaluate)
 
 __all__ = ["PreparedView", "prepare_view", "check_threads"]
+
+# The last keep mask a view gathered, and its gather: (view, copy of keep, keep over the
+# visible Gaussians). The filter renders one view with the same keep several times in a row
+# (a verifying view's two ranges); comparing N bytes in order costs a tenth of gathering them
+# in depth order. One slot for all views: a copy per view would hold V x N bytes.
+_last_keep: tuple = (lambda: None, None, None)
 
 
 def check_threads(num_threads) -> int:
@@ -109,10 +116,25 @@ class PreparedView(_TiledView):
                 f"{self.memory_bytes / 2**20:.1f} MiB)")
 
     # -- helpers ---------------------------------------------------------------------------
+    def _forget_keep(self) -> None:
+        """Drop the gather of the last keep mask if it was this view's (its index changed)."""
+        global _last_keep
+        if _last_keep[0]() is self:
+            _last_keep = (lambda: None, None, None)
+
     def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
         """(V,) bool keep over the visible Gaussians, or None."""
+        global _last_keep
         keep = _check_keep(keep, self.num_gaussians, field)
-        keep_v = None if keep is None else _kernels.take_mask(keep, self._index, self._num_threads)
+        keep_v = None
+        if keep is not None:
+            view, mask, gathered = _last_keep     # one read: another thread may replace it
+            if view() is self and np.array_equal(mask, keep):
+                keep_v = gathered
+            else:
+                keep_v = _kernels.take_mask(keep, self._index, self._num_threads)
+                keep_v.flags.writeable = False
+                _last_keep = (weakref.ref(self), keep.copy(), keep_v)
         if keep_v is not None and self._floor is not None and (self._floor & ~keep_v).any():
             raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
                                   "its floor, and this one leaves some out", field=field)
@@ -132,9 +154,13 @@ class PreparedView(_TiledView):
             if a.shape != (self.num_gaussians,):
                 raise ClearsplatError(f"expected a ({self.num_gaussians},) bool mask, got shape "
                                       f"{a.shape}", field=field)
-            seen = _kernels.take_mask(a, self._index, self._num_threads)
-            return np.flatnonzero(seen).astype(np.int32)
-        idx = _check_indices(a, self.num_gaussians, field)
+            idx = np.flatnonzero(a)
+            if 16 * idx.size >= self.num_visible:
+                # Dense: one gather over the visible Gaussians beats a lookup per index.
+                seen = _kernels.take_mask(a, self._index, self._num_threads)
+                return np.flatnonzero(seen).astype(np.int32)
+        else:
+            idx = _check_indices(a, self.num_gaussians, field)
         if self._by_index is None:
             if 3 * self.num_visible >= self.num_gaussians:
                 # A view that sees much of the scene: a Gaussian -> visible id map (-1: not
@@ -507,6 +533,7 @@ class PreparedView(_TiledView):
         self._offsets, self._lists = offsets, lists[:pairs]
         self.num_gaussians = int(np.count_nonzero(keep))
         self._by_index = None
+        self._forget_keep()
         return self
 
     def subset(self, keep) -> "PreparedView":
