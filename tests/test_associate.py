@@ -375,16 +375,33 @@ def test_view_choice_matches_a_loop(seed):
     assert got[3][:5].all()
 
 
-def test_static_content_goes_to_a_view_that_has_it_outside():
-    K = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
-    cams = [Camera(K=K, camera_to_world=look_at((x, -4.0, 0.0), (x, 0.0, 0.0)), width=32,
-                   height=24) for x in (0.0, 0.3, 6.0)]
-    means = np.array([[0.1, 0.0, 0.0], [0.2, 0.0, 0.1]])
-    total = np.array([[2.0, 3.0, 0.0], [1.0, 0.5, 0.0]], dtype=np.float16)
-    # Camera 2 looks elsewhere: it needs neither point.
-    assert np.array_equal(assoc._unneeded_view(means, cams, total), [2, 2])
-    # Inside every camera: the one that sees it least.
-    assert np.array_equal(assoc._unneeded_view(means, cams[:2], total[:, :2]), [0, 1])
+def test_static_content_goes_to_the_view_that_sees_it_most():
+    # A wall of one colour seen by two cameras, one twice as far: each image is the wall's
+    # own render, so both views see its Gaussians agreeing (static content), and each goes to
+    # the nearer camera, where it covers four times the pixels. A Gaussian only the far camera
+    # sees (beyond the near one's image) goes to the far one.
+    from clearsplat import Gaussians
+    from clearsplat.render import render
+    from clearsplat.scene import rgb_to_sh_dc
+
+    xy = np.stack(np.meshgrid(np.linspace(-0.5, 0.5, 11), np.linspace(-0.4, 0.4, 9)),
+                  -1).reshape(-1, 2)
+    xy = np.concatenate([xy, [[1.6, 0.0]]])                # outside the near camera's view
+    n = len(xy)
+    wall = Gaussians(means=np.c_[xy, np.zeros(n)], scales=np.full((n, 3), 0.1),
+                     quats=np.tile([1.0, 0, 0, 0], (n, 1)), opacities=np.full(n, 0.99),
+                     sh=rgb_to_sh_dc(np.full((n, 1, 3), 0.6)))
+    K = np.array([[40.0, 0, 24], [0, 40.0, 18], [0, 0, 1]])
+    cams = [Camera(K=K, camera_to_world=look_at((0.0, 0.0, -d), (0.0, 0.0, 0.0),
+                                                up=(0.0, -1.0, 0.0)), width=48, height=36)
+            for d in (2.0, 4.0)]
+    images = [render(wall, cam).rgb for cam in cams]
+    a = associate_fused(wall, cams, images)
+    total, agreeing = assoc._view_sums(wall, cams, images, colour_sigma=0.03, settings=None,
+                                       num_threads=None)
+    _, multi, _, _ = assoc._choose_views(total, agreeing, agree_ratio=0.7, min_weight=0.05)
+    assert multi[:-1].mean() > 0.8 and not multi[-1]
+    assert (a.view_id[multi] == 0).all() and a.view_id[-1] == 1
 
 
 def test_gaussians_no_camera_renders_face_a_camera():

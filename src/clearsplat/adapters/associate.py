@@ -18,8 +18,8 @@ view and pixel made each Gaussian, this module recovers them:
 - :func:`associate_fused`: Gaussians that mix pixels of several views (AnySplat's and
   WorldMirror's voxel fusion) or come from any trainer, in no useful order. From renders of
   every input camera: a Gaussian whose colour agrees with one view's image only (a transient)
-  goes to that view; one that several views see agreeing (static content) to a view that
-  does not need it; ``pixel_id = -1``.
+  goes to that view; one that several views see agreeing (static content) to the view that
+  sees it most; ``pixel_id = -1``.
 - :func:`normalised_frame`: the frame Depth Anything 3 writes its Gaussians in when it is
   given poses (camera 0 the identity, median camera distance 1), as the similarity back to the
   cameras' frame.
@@ -542,14 +542,18 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
       image of the view that saw it only: from the others it covers what their images show
       behind it), or content that only one view sees. It goes to that view, as a per-pixel
       model would have it.
-    - Several: multi-view content (static). It goes to a view that does not need it: one that
-      has it outside its image (or behind it), else the one that sees it least (the smallest
-      ``W``). So no view's exclusion render (the filter's render without that view's own
-      Gaussians) loses static content it sees, as with per-pixel Gaussians, where the other
-      views' copies stay. A view that has it outside its image comes first because the
-      static content behind a view's own transient is what that view sees least of all (the
-      transient hides it): owned by that view, it would leave a hole where the filter looks
-      for what the transient hides.
+    - Several: multi-view content (static). It goes to the view that sees it most (the largest
+      ``W``), as a pixel-aligned model predicts each Gaussian from a view that sees it: each
+      view then owns what it sees best, and what the filter measures on a view's own
+      Gaussians (their colour noise, their depths at their pixels) is measured where they
+      are seen. A fused Gaussian has no copy in the other views, so the owner's exclusion
+      render (the filter's render without that view's own Gaussians) loses it: a region the
+      filter proposes there holds static content, which the other views, where removing it
+      worsens the match to their images, reject. (Giving it to a view that sees it least, to
+      spare every exclusion render, measured worse: a view's own statistics then count
+      Gaussians it barely sees, and the static content behind a view's transient, which that
+      view sees least, leaves its exclusion render where the filter looks for what the
+      transient hides; ``docs/benchmarks.md``, "Association from geometry".)
     - None (no view sees it agreeing with a summed weight of ``min_weight``): its best view;
       where no colour agrees anywhere, the view that sees it largest (where the filter can find
       it as a region that disagrees with the image); and if no camera renders it at all, the
@@ -608,7 +612,7 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
                                                       min_weight=min_weight)
     means = gaussians.means.astype(np.float64)
     if multi.any():
-        view_id[multi] = _unneeded_view(means[multi], cameras, total[multi])
+        view_id[multi] = np.argmax(total[multi], axis=1)
     if unseen.any():
         view_id[unseen] = _facing_view(means[unseen], cameras)
     return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
@@ -651,7 +655,7 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
     view_id : (N,) int64
         The best view (the largest ``A * r``; where no colour agrees, the largest ``W``).
     multi : (N,) bool
-        Several views see it agreeing: its view is to be one that does not need it.
+        Several views see it agreeing: its view is to be the one that sees it most.
     ambiguous : (N,) bool
         No view sees it agreeing.
     unseen : (N,) bool
@@ -672,21 +676,6 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         view_id[rows] = np.where(r_best > 0, best, np.argmax(w, axis=1))
         unseen[rows] = w.max(axis=1, initial=0.0) <= 0
     return view_id, count >= 2, count == 0, unseen
-
-
-def _unneeded_view(means: np.ndarray, cameras, total: np.ndarray) -> np.ndarray:
-    """(M,) int64: per centre, a camera that does not need it, given its summed weights ``W``
-    (M, V): of the cameras that have it outside their image (or behind them), the one with the
-    least weight; where every camera has it inside, the one that sees it least."""
-    pick = np.argmin(total, axis=1)
-    least = np.full(len(means), np.inf)
-    for v, cam in enumerate(cameras):
-        outside = ~_projection(cam, means, 0.5)[2]
-        wv = total[:, v].astype(np.float64)
-        better = outside & (wv < least)
-        pick[better] = v
-        least[better] = wv[better]
-    return pick.astype(np.int64)
 
 
 def _facing_view(means: np.ndarray, cameras) -> np.ndarray:
