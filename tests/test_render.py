@@ -663,6 +663,12 @@ def test_a_keep_mask_reused_changed_or_after_restrict_renders_anew(world):
     assert_same(view.render(keep=part), fresh.render(keep=part))
     part[::2] = False
     assert_same(view.render(keep=part), fresh.render(keep=part))
+    # The remembered mask goes with its view.
+    from clearsplat.render import native
+    view.render(keep=part)
+    assert native._last_keep[0]() is view and native._last_keep[1].size == part.size
+    del view
+    assert native._last_keep[0]() is None and native._last_keep[1] is None
 
 
 def test_empty_scene_and_empty_view():

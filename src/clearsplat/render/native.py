@@ -33,8 +33,16 @@ __all__ = ["PreparedView", "prepare_view", "check_threads"]
 # The last keep mask a view gathered, and its gather: (view, copy of keep, keep over the
 # visible Gaussians). The filter renders one view with the same keep several times in a row
 # (a verifying view's two ranges); comparing N bytes in order costs a tenth of gathering them
-# in depth order. One slot for all views: a copy per view would hold V x N bytes.
-_last_keep: tuple = (lambda: None, None, None)
+# in depth order. One slot for all views (a copy per view would hold V x N bytes), emptied
+# when its view is gone.
+_EMPTY: tuple = (lambda: None, None, None)
+_last_keep: tuple = _EMPTY
+
+
+def _forget_dead(ref) -> None:
+    global _last_keep
+    if _last_keep[0] is ref:
+        _last_keep = _EMPTY
 
 
 def check_threads(num_threads) -> int:
@@ -120,7 +128,7 @@ class PreparedView(_TiledView):
         """Drop the gather of the last keep mask if it was this view's (its index changed)."""
         global _last_keep
         if _last_keep[0]() is self:
-            _last_keep = (lambda: None, None, None)
+            _last_keep = _EMPTY
 
     def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
         """(V,) bool keep over the visible Gaussians, or None."""
@@ -134,7 +142,7 @@ class PreparedView(_TiledView):
             else:
                 keep_v = _kernels.take_mask(keep, self._index, self._num_threads)
                 keep_v.flags.writeable = False
-                _last_keep = (weakref.ref(self), keep.copy(), keep_v)
+                _last_keep = (weakref.ref(self, _forget_dead), keep.copy(), keep_v)
         if keep_v is not None and self._floor is not None and (self._floor & ~keep_v).any():
             raise ClearsplatError("this view was pruned for renders that keep every Gaussian of "
                                   "its floor, and this one leaves some out", field=field)
