@@ -143,14 +143,13 @@ def measure(mode: str, bundle: Path, out: Path, workers: int) -> dict:
     return {"mode": mode, "wall": wall, "peak_gb": peak * 1024 / 1e9}
 
 
-def score(bundle: Path, out: Path) -> dict:
-    """Recall, share of the clean gain and other Gaussians removed, from ``removed.npy``."""
+def score(bundle: Path, removed: np.ndarray) -> dict:
+    """Recall, share of the clean gain and other Gaussians removed, from a run's removal."""
     from clearsplat import Camera
     from clearsplat.bench import _quality
     from clearsplat.io import load_scene
     from clearsplat.metrics import removal_stats
 
-    removed = np.load(out / "removed.npy")
     truth = np.load(bundle / "truth.npy")
     stats = removal_stats(removed, truth)
     q = np.load(bundle / "quality.npz")
@@ -160,8 +159,7 @@ def score(bundle: Path, out: Path) -> dict:
     filtered = _quality(scene, ~removed, cams, list(q["images"]))["psnr"]
     base, clean = float(q["base"]), float(q["clean"])
     return {"recall": stats["recall"], "other": stats["static_removed"],
-            "gain": filtered - base, "of_clean": (filtered - base) / (clean - base),
-            "removed": removed}
+            "gain": filtered - base, "of_clean": (filtered - base) / (clean - base)}
 
 
 def reach(bundle: Path) -> str:
@@ -219,7 +217,7 @@ def main(argv=None) -> int:
             row.update(frames=frames, gaussians=n)
             removed = np.load(out / "removed.npy")
             if not args.no_quality and (bundle / "quality.npz").is_file():
-                row.update({k: v for k, v in score(bundle, out).items() if k != "removed"})
+                row.update(score(bundle, removed))
             same = "" if first is None else ("yes" if np.array_equal(first, removed) else
                                              f"{int((first != removed).sum())} differ")
             first = removed if first is None else first

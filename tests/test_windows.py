@@ -194,15 +194,29 @@ def test_a_killed_run_resumes_and_loses_nothing(video, windowed, tmp_path, capsy
         assert (out / name).read_bytes() == (windowed / name).read_bytes(), name
 
 
-def test_a_changed_config_starts_afresh(video, tmp_path):
+def test_a_changed_config_starts_afresh(video, tmp_path, monkeypatch):
+    import clearsplat.batch.windows as wmod
+
     out = tmp_path / "out"
     state = tmp_path / ".out.clearsplat-windows"
     subprocess.run([sys.executable, "-c", _KILLED, str(video), str(out)])
     assert len(list(state.glob("window-*.npz"))) == 2
+    before = json.loads((state / "plan.json").read_text())
+    seen = []
+    real_run = wmod._run
+
+    def run(jobs, *args):
+        # Every window runs again, under a plan that names the new config.
+        seen.append(len(jobs))
+        assert json.loads((state / "plan.json").read_text())["config"] != before["config"]
+        return real_run(jobs, *args)
+
+    monkeypatch.setattr(wmod, "_run", run)
     lines = []
     filter_windows(video, out, config=FilterConfig.preset("video"), log=lines.append,
                    **OPTIONS)
     assert not any(line.startswith("resuming") for line in lines)
+    assert seen == [len(plan_windows(14, **OPTIONS))]
 
 
 def test_a_second_run_into_the_same_out_is_refused(video, windowed, capsys):
@@ -325,17 +339,24 @@ def test_a_window_larger_than_every_ray_node_gets_one_line(video, tmp_path, monk
 
 
 def test_each_window_asks_for_at_least_what_it_holds(video):
-    """The memory a window asks Ray for grows with its rows and covers reading them twice."""
+    """The memory a window asks Ray for grows with its rows and covers what it holds: its
+    rows as read from the file, and its scene decoded (Gaussians, association, images)."""
     from clearsplat.batch.windows import _window_memory
-    from clearsplat.io import load_cameras
-    cameras, _ = load_cameras(video)
     rows = PlyRows(video / "gaussians.ply")
+    whole = load_scene(video)
     views = rows.column("view_id")
-    plan = plan_windows(len(cameras), **OPTIONS)
-    need = _window_memory(plan, views, cameras, rows.dtype.itemsize, FilterConfig())
-    held = [int(np.isin(views, list(w.held)).sum()) for w in plan]
-    assert all(m >= 2 * h * rows.dtype.itemsize for m, h in zip(need, held))
-    assert (np.argsort(need, kind="stable") == np.argsort(held, kind="stable")).all()
+    plan = plan_windows(whole.num_views, **OPTIONS)
+    need = _window_memory(plan, views, whole.cameras, rows.dtype.itemsize, FilterConfig())
+    held = [np.isin(views, list(w.held)) for w in plan]
+    for m, w, mine in zip(need, plan, held):
+        part = whole.subset(mine)
+        g = part.gaussians
+        decoded = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh,
+                                          part.view_id, part.pixel_id))
+        decoded += sum(whole.images[i].nbytes for i in w.held)
+        assert m >= int(mine.sum()) * rows.dtype.itemsize + decoded
+    counts = [int(h.sum()) for h in held]
+    assert (np.argsort(need, kind="stable") == np.argsort(counts, kind="stable")).all()
 
 
 @pytest.mark.parametrize("views", [2, 7, 8, 23, 24, 40])

@@ -282,7 +282,7 @@ def read_candidates(path, *, num_gaussians: int | None = None,
         if name != "bits" and flat.size:
             check(name, flat.min() >= 0 and flat.max() < n,
                   f"Gaussian index outside 0..{n - 1}")
-    return CandidateSets(num_gaussians=n, **{f: arrays[f] for f in need if f != "num_gaussians"})
+    return CandidateSets.from_arrays({**arrays, "num_gaussians": n})
 
 
 # ------------------------------------------------------------------------------------------------

@@ -610,11 +610,10 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
                                  settings=settings, num_threads=num_threads)
     view_id, multi, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=agree_ratio,
                                                       min_weight=min_weight)
-    means = gaussians.means.astype(np.float64)
     if multi.any():
         view_id[multi] = np.argmax(total[multi], axis=1)
     if unseen.any():
-        view_id[unseen] = _facing_view(means[unseen], cameras)
+        view_id[unseen] = _facing_view(gaussians.means[unseen].astype(np.float64), cameras)
     return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
 
 

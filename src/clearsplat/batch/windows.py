@@ -146,6 +146,7 @@ def filter_window(job: dict) -> dict:
     call): ``window-K.npz`` with the rows its judged candidates remove and those candidates
     (rows and views of the whole capture). Returns the window's counts and seconds."""
     from ..filter import filter_distractors
+    from ..filter.pipeline import keep_mask
     from ..review import CandidateSets
 
     t0 = time.perf_counter()
@@ -155,18 +156,14 @@ def filter_window(job: dict) -> dict:
     result = filter_distractors(scene, config=job["config"])
     lo = window.held.start
     own = [c for c in result.candidates if c.view + lo in window.judged]
-    removed = np.zeros(len(scene), bool)
-    for c in own:
-        if c.accepted and c.expanded is not None:
-            removed[c.expanded] = True
+    removed = ~keep_mask(own, len(scene))
     shifted = [dataclasses.replace(c, view=c.view + lo, gaussians=rows[c.gaussians],
                                    expanded=None if c.expanded is None else rows[c.expanded],
                                    verify_views=[v + lo for v in c.verify_views])
                for c in own]
     sets = CandidateSets.from_candidates(shifted, num_gaussians=job["count"])
     records = [c.record() for c in shifted]
-    done = {"removed": int(removed.sum()), "candidates": len(own),
-            "accepted": int(sum(c.accepted for c in own)),
+    done = {"removed": int(removed.sum()),
             "seconds": time.perf_counter() - t0, "warnings": list(result.warnings),
             "timings": {k: float(v) for k, v in result.timings.items()}}
     arrays = {f"c_{k}": np.asarray(v) for k, v in sets.arrays().items()}
@@ -286,8 +283,7 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     resolved = resolve_auto(config, len(cameras))
     memory = _window_memory(windows, views, cameras, ply.dtype.itemsize, resolved)
     del views
-    jobs = [{"index": w.index, "judged": [w.judged.start, w.judged.stop],
-             "held": [w.held.start, w.held.stop], "bundle": os.fspath(bundle.resolve()),
+    jobs = [{**w.record(), "bundle": os.fspath(bundle.resolve()),
              "state": os.fspath(state.resolve()), "count": ply.count,
              "config": resolved, "memory": memory[w.index]}
             for w in windows if w.index not in done]
@@ -357,8 +353,10 @@ def _checked_input(bundle: Path):
 def _order_warning(cameras, windows: list[Window], margin: int) -> list[str]:
     """The warning (a list of one, or empty) for an input order that does not follow the
     camera path, where there are several windows to cut it."""
+    if len(windows) < 2:
+        return []
     breaks = order_breaks(cameras, margin=margin)
-    if len(windows) < 2 or breaks.mean() <= _BREAKS_WARN:
+    if breaks.mean() <= _BREAKS_WARN:
         return []
     return [f"the input order does not follow the camera path: for {int(breaks.sum())} of "
             f"{len(cameras)} views the nearest camera is more than {margin} views away, and "

@@ -30,6 +30,11 @@ namespace CS_COMPOSITE_VARIANT {
 
 namespace {
 
+// This compilation's rows per step and its lane types.
+constexpr int R = CS_ROWS;
+typedef Rows<R>::F F;
+typedef Rows<R>::I I;
+
 CS_INLINE int imin(int a, int b) { return b < a ? b : a; }
 CS_INLINE int imax(int a, int b) { return a < b ? b : a; }
 
@@ -104,42 +109,36 @@ struct TileState {
 // One step's rows: lanes of row ly (and ly + 1 when `two`) from column `base` on, at tile
 // offset p = 16 ly + base; `dy` the vertical offsets of the Gaussian's centre from each lane's
 // pixel row, `valid` the lanes of rows inside the box.
-template <int R>
 struct Step {
-    typedef typename Rows<R>::F F;
-    typedef typename Rows<R>::I I;
     int p;
     bool two;
     F dy;
     I valid;
 };
 
-template <int R>
-CS_INLINE Step<R> rows_at(const Splat& gs, const TileState& s, int ly, int ly1, int base) {
-    Step<R> st;
+CS_INLINE Step rows_at(const Splat& gs, const TileState& s, int ly, int ly1, int base) {
+    Step st;
     st.p = ly * kTile + base;
     const f8 dy0 = splat(gs.v - (float(s.y0 + ly) + 0.5f));
-    if constexpr (R == 1) {
-        st.two = false;
-        st.dy = dy0;
-        st.valid = splat_i(-1);
-    } else {
-        st.two = ly + 1 <= ly1;
-        st.dy = join(dy0, splat(gs.v - (float(s.y0 + ly + 1) + 0.5f)));
-        st.valid = join(splat_i(-1), splat_i(st.two ? -1 : 0));
-    }
+#if CS_ROWS == 1
+    (void)ly1;
+    st.two = false;
+    st.dy = dy0;
+    st.valid = splat_i(-1);
+#else
+    st.two = ly + 1 <= ly1;
+    st.dy = join(dy0, splat(gs.v - (float(s.y0 + ly + 1) + 0.5f)));
+    st.valid = join(splat_i(-1), splat_i(st.two ? -1 : 0));
+#endif
     return st;
 }
 
 // Adds one Gaussian's contribution to the `active` lanes of step `st` of `s`, the 3DGS rule:
 // where T would fall below 1e-4 the pixel stops without adding; elsewhere C += c * alpha * T,
 // D += z * alpha * T, T *= 1 - alpha.
-template <int R>
-CS_INLINE void accumulate(TileState& s, const Step<R>& st, typename Rows<R>::I done,
-                          typename Rows<R>::I active, typename Rows<R>::F alpha,
+CS_INLINE void accumulate(TileState& s, const Step& st, I done,
+                          I active, F alpha,
                           const Splat& gs, int32_t id, Vec<Entry>* record) {
-    typedef typename Rows<R>::F F;
-    typedef typename Rows<R>::I I;
     const int p = st.p;
     const bool two = st.two;
     const F t = load_rows<F>(s.T + p, kTile, two);
@@ -165,17 +164,14 @@ CS_INLINE void accumulate(TileState& s, const Step<R>& st, typename Rows<R>::I d
 // The lanes of step `st` (columns base.. of its rows) that `gs` reaches: inside its box
 // columns [start, lx1] and rows, not `done`, power <= 0 and alpha >= 1/255, with their alpha
 // (capped at 0.99) in `alpha`. The 3DGS per-pixel test, shared by every compositing loop.
-template <int R>
-CS_INLINE typename Rows<R>::I reached(const Splat& gs, const TileState& s, const Step<R>& st,
-                                      int start, int lx1, int base, typename Rows<R>::I done,
-                                      typename Rows<R>::F& alpha) {
-    typedef typename Rows<R>::F F;
-    typedef typename Rows<R>::I I;
-    I col;
-    if constexpr (R == 1)
-        col = I{0, 1, 2, 3, 4, 5, 6, 7} + base;
-    else
-        col = I{0, 1, 2, 3, 4, 5, 6, 7, 0, 1, 2, 3, 4, 5, 6, 7} + base;
+CS_INLINE I reached(const Splat& gs, const TileState& s, const Step& st,
+                                      int start, int lx1, int base, I done,
+                                      F& alpha) {
+#if CS_ROWS == 1
+    const I col = I{0, 1, 2, 3, 4, 5, 6, 7} + base;
+#else
+    const I col = I{0, 1, 2, 3, 4, 5, 6, 7, 0, 1, 2, 3, 4, 5, 6, 7} + base;
+#endif
     I active = (col >= start) & (col <= lx1) & ~done & st.valid;
     if (!any(active)) return active;
     const F dx = gs.u - (__builtin_convertvector(col + s.x0, F) + 0.5f);
@@ -190,28 +186,25 @@ CS_INLINE typename Rows<R>::I reached(const Splat& gs, const TileState& s, const
 // Calls f(step, start, base) for each step of R rows and eight columns of `gs`'s box inside the
 // tile of `s`, row by row (columns [lx0, lx1]: start is the first box column of the step,
 // base = min(start, 8) its first lane's, so that the eight lanes stay in the row).
-template <int R, class Fn>
+template <class Fn>
 CS_INLINE void for_box(const Splat& gs, const TileState& s, Fn&& f) {
     const int lx0 = imax(int(gs.bx0) - s.x0, 0), lx1 = imin(int(gs.bx1) - s.x0, s.w - 1);
     const int ly0 = imax(int(gs.by0) - s.y0, 0), ly1 = imin(int(gs.by1) - s.y0, s.h - 1);
     for (int ly = ly0; ly <= ly1; ly += R)
         for (int start = lx0; start <= lx1; start += 8) {
             const int base = imin(start, kTile - 8);
-            f(rows_at<R>(gs, s, ly, ly1, base), start, lx1, base);
+            f(rows_at(gs, s, ly, ly1, base), start, lx1, base);
         }
 }
 
 // Adds `gs` (visible id `id`) to the pixels of its box inside the tile of `s`: the 3DGS rule per
 // pixel (reached, accumulate), eight pixels of R rows at a time.
-template <int R>
 CS_INLINE void add_splat(TileState& s, const Splat& gs, int32_t id, Vec<Entry>* record) {
-    typedef typename Rows<R>::F F;
-    typedef typename Rows<R>::I I;
-    for_box<R>(gs, s, [&](const Step<R>& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
+    for_box(gs, s, [&](const Step& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
         const I done = load_rows<I>(s.done + st.p, kTile, st.two);
         F alpha;
-        const I active = reached<R>(gs, s, st, start, lx1, base, done, alpha);
-        if (any(active)) accumulate<R>(s, st, done, active, alpha, gs, id, record);
+        const I active = reached(gs, s, st, start, lx1, base, done, alpha);
+        if (any(active)) accumulate(s, st, done, active, alpha, gs, id, record);
     });
 }
 
@@ -222,8 +215,8 @@ CS_INLINE void add_splat(TileState& s, const Splat& gs, int32_t id, Vec<Entry>* 
 // when T would fall below 1e-4, else add c * alpha * T. It runs eight pixels of a row (two rows
 // on AVX-512) at a time over each Gaussian's pixel box; lanes outside the box or already done
 // change nothing.
-template <int R>
-CS_INLINE void composite_tile_rows(const ViewData& v, int tile, const uint8_t* keep,
+CS_CLONES
+void composite_tile(const ViewData& v, int tile, const uint8_t* keep,
                                    const int32_t* removed, int64_t num_removed, TileState& s,
                                    Vec<Entry>* record) {
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
@@ -238,24 +231,16 @@ CS_INLINE void composite_tile_rows(const ViewData& v, int tile, const uint8_t* k
             while (ri < num_removed && removed[ri] < id) ++ri;
             if (ri < num_removed && removed[ri] == id) continue;
         }
-        add_splat<R>(s, v.splats[id], id, record);
+        add_splat(s, v.splats[id], id, record);
     }
-}
-
-CS_CLONES
-void composite_tile(const ViewData& v, int tile, const uint8_t* keep, const int32_t* removed,
-                    int64_t num_removed, TileState& s, Vec<Entry>* record) {
-    composite_tile_rows<CS_ROWS>(v, tile, keep, removed, num_removed, s, record);
 }
 
 // The tile restricted to keep_a (all when null) into `a` and to keep_b into `b`, in one pass
 // over its list: the per-lane alpha is computed once and each state is updated exactly as
 // composite_tile would update it alone, so both equal their separate renders bit for bit.
-template <int R>
-CS_INLINE void composite_tile_pair_rows(const ViewData& v, int tile, const uint8_t* keep_a,
+CS_CLONES
+void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
                                         const uint8_t* keep_b, TileState& a, TileState& b) {
-    typedef typename Rows<R>::F F;
-    typedef typename Rows<R>::I I;
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
     const I all_done = I{} - 1;
@@ -266,32 +251,26 @@ CS_INLINE void composite_tile_pair_rows(const ViewData& v, int tile, const uint8
         const bool in_b = b.remaining > 0 && keep_b[id];
         if (!in_a && !in_b) continue;
         const Splat& gs = v.splats[id];
-        for_box<R>(gs, a, [&](const Step<R>& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
+        for_box(gs, a, [&](const Step& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
             const I done_a = in_a ? load_rows<I>(a.done + st.p, kTile, st.two) : all_done;
             const I done_b = in_b ? load_rows<I>(b.done + st.p, kTile, st.two) : all_done;
             // The lanes either state still composites (a and b share the tile's origin).
             F alpha;
-            const I act = reached<R>(gs, a, st, start, lx1, base, done_a & done_b, alpha);
+            const I act = reached(gs, a, st, start, lx1, base, done_a & done_b, alpha);
             if (!any(act)) return;
             const I act_a = act & ~done_a, act_b = act & ~done_b;
-            if (any(act_a)) accumulate<R>(a, st, done_a, act_a, alpha, gs, id, nullptr);
-            if (any(act_b)) accumulate<R>(b, st, done_b, act_b, alpha, gs, id, nullptr);
+            if (any(act_a)) accumulate(a, st, done_a, act_a, alpha, gs, id, nullptr);
+            if (any(act_b)) accumulate(b, st, done_b, act_b, alpha, gs, id, nullptr);
         });
     }
-}
-
-CS_CLONES
-void composite_tile_pair(const ViewData& v, int tile, const uint8_t* keep_a,
-                         const uint8_t* keep_b, TileState& a, TileState& b) {
-    composite_tile_pair_rows<CS_ROWS>(v, tile, keep_a, keep_b, a, b);
 }
 
 // The tile's Gaussians of each layer into that layer's state, in one pass over its list:
 // layer[id] in [0, num_layers) picks the state, a negative value none. Each state is updated
 // exactly as composite_tile updates it with keep = (layer == k), so each equals that render
 // bit for bit; a Gaussian is evaluated once, for its own layer.
-template <int R>
-CS_INLINE void composite_tile_layers_rows(const ViewData& v, int tile, const int8_t* layer,
+CS_CLONES
+void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer,
                                           TileState* states, int num_layers) {
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
@@ -304,15 +283,9 @@ CS_INLINE void composite_tile_layers_rows(const ViewData& v, int tile, const int
         const int l = layer[id];
         if (l < 0 || states[l].remaining <= 0) continue;
         TileState& s = states[l];
-        add_splat<R>(s, v.splats[id], id, nullptr);
+        add_splat(s, v.splats[id], id, nullptr);
         if (s.remaining <= 0) --live;
     }
-}
-
-CS_CLONES
-void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, TileState* states,
-                           int num_layers) {
-    composite_tile_layers_rows<CS_ROWS>(v, tile, layer, states, num_layers);
 }
 
 // Marks the entries of one tile's list that a render of any subset containing `floor` can
@@ -322,11 +295,9 @@ void composite_tile_layers(const ViewData& v, int tile, const int8_t* layer, Til
 // `floor` multiplies in more factors 1 - alpha <= 1, so its transmittance is never higher at
 // any point of the list (rounding is monotone) and a pixel stopped under `floor` has stopped
 // under it too, at the same entry or before: an entry not marked never changes such a render.
-template <int R>
-CS_INLINE void mark_tile_rows(const ViewData& v, int tile, const uint8_t* floor, TileState& s,
+CS_CLONES
+void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s,
                               uint8_t* live) {
-    typedef typename Rows<R>::F F;
-    typedef typename Rows<R>::I I;
     const int32_t* list = v.tile_lists + v.tile_offsets[tile];
     const int64_t len = v.tile_offsets[tile + 1] - v.tile_offsets[tile];
     int64_t k = 0;
@@ -336,22 +307,17 @@ CS_INLINE void mark_tile_rows(const ViewData& v, int tile, const uint8_t* floor,
         const bool in_floor = floor[id] != 0;
         const Splat& gs = v.splats[id];
         bool used = false;
-        for_box<R>(gs, s, [&](const Step<R>& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
+        for_box(gs, s, [&](const Step& st, int start, int lx1, int base) CS_LAMBDA_INLINE {
             const I done = load_rows<I>(s.done + st.p, kTile, st.two);
             F alpha;
-            const I active = reached<R>(gs, s, st, start, lx1, base, done, alpha);
+            const I active = reached(gs, s, st, start, lx1, base, done, alpha);
             if (!any(active)) return;
             used = true;
-            if (in_floor) accumulate<R>(s, st, done, active, alpha, gs, id, nullptr);
+            if (in_floor) accumulate(s, st, done, active, alpha, gs, id, nullptr);
         });
         live[k] = used ? 1 : 0;
     }
     for (; k < len; ++k) live[k] = 0;  // every pixel of the tile has stopped
-}
-
-CS_CLONES
-void mark_tile(const ViewData& v, int tile, const uint8_t* floor, TileState& s, uint8_t* live) {
-    mark_tile_rows<CS_ROWS>(v, tile, floor, s, live);
 }
 
 // Writes pixel p of the tile state: rgb = C + T bg, alpha = 1 - T, depth = D / alpha.

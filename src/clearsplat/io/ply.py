@@ -523,6 +523,15 @@ def _columns_to_gaussians(cols: dict, types: dict, comments: list, path, *,
 # ------------------------------------------------------------------------------------------------
 # writing
 # ------------------------------------------------------------------------------------------------
+def _binary_header(n: int, comments: list, properties: list) -> bytes:
+    """The header of a little-endian binary PLY of ``n`` vertices with ``properties`` ((type
+    token, name) pairs, in order) and ``comments`` (whole header lines)."""
+    lines = ["ply", "format binary_little_endian 1.0", *comments, f"element vertex {n}"]
+    lines += [f"property {token} {name}" for token, name in properties]
+    lines.append("end_header")
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
 def write_ply(path, gaussians: Gaussians, *, view_id=None, pixel_id=None) -> None:
     """Write Gaussians as a binary little-endian 3DGS-layout PLY (atomically).
 
@@ -589,10 +598,7 @@ def write_ply(path, gaussians: Gaussians, *, view_id=None, pixel_id=None) -> Non
             if _TYPES.get(token) == cols[name].dtype.str[1:]:
                 tokens[name] = token
 
-    lines = ["ply", "format binary_little_endian 1.0", *comments, f"element vertex {n}"]
-    lines += [f"property {tokens[name]} {name}" for name in order]
-    lines.append("end_header")
-    header = ("\n".join(lines) + "\n").encode("ascii")
+    header = _binary_header(n, comments, [(tokens[name], name) for name in order])
     dtype = np.dtype([(name, "<" + cols[name].dtype.str[1:]) for name in order])
     # Fill the file's bytes in place, block by block (no table copy, no concatenation).
     data = bytearray(len(header) + n * dtype.itemsize)
@@ -802,7 +808,6 @@ class PlyRows:
         records = self.select(rows)
         cols = _split_columns(records, self._props)
         del records
-        cols = {k: v.astype(v.dtype.newbyteorder("="), copy=False) for k, v in cols.items()}
         return _columns_to_gaussians(cols, self._types, self._comments, self.path)
 
     def write_rows(self, path, rows, *, zero_opacity=None) -> None:
@@ -812,11 +817,8 @@ class PlyRows:
         :data:`OPACITY_EPS`, as :func:`write_ply` writes it)."""
         rows = np.asarray(rows, dtype=np.int64)
         little = np.dtype([(n, "<" + self.dtype[n].str[1:]) for n in self.dtype.names])
-        lines = ["ply", "format binary_little_endian 1.0", *self._comments,
-                 f"element vertex {rows.size}"]
-        lines += [f"property {self._types[p.name]} {p.name}" for p in self._props]
-        lines.append("end_header")
-        header = ("\n".join(lines) + "\n").encode("ascii")
+        header = _binary_header(rows.size, self._comments,
+                                [(self._types[p.name], p.name) for p in self._props])
         path = Path(path)
         tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
         try:

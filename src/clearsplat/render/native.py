@@ -124,12 +124,6 @@ class PreparedView(_TiledView):
                 f"{self.memory_bytes / 2**20:.1f} MiB)")
 
     # -- helpers ---------------------------------------------------------------------------
-    def _forget_keep(self) -> None:
-        """Drop the gather of the last keep mask if it was this view's (its index changed)."""
-        global _last_keep
-        if _last_keep[0]() is self:
-            _last_keep = _EMPTY
-
     def _keep(self, keep, field: str = "keep") -> np.ndarray | None:
         """(V,) bool keep over the visible Gaussians, or None."""
         global _last_keep
@@ -162,11 +156,11 @@ class PreparedView(_TiledView):
             if a.shape != (self.num_gaussians,):
                 raise ClearsplatError(f"expected a ({self.num_gaussians},) bool mask, got shape "
                                       f"{a.shape}", field=field)
-            idx = np.flatnonzero(a)
-            if 16 * idx.size >= self.num_visible:
+            if 16 * np.count_nonzero(a) >= self.num_visible:
                 # Dense: one gather over the visible Gaussians beats a lookup per index.
                 seen = _kernels.take_mask(a, self._index, self._num_threads)
                 return np.flatnonzero(seen).astype(np.int32)
+            idx = np.flatnonzero(a)
         else:
             idx = _check_indices(a, self.num_gaussians, field)
         if self._by_index is None:
@@ -541,7 +535,6 @@ class PreparedView(_TiledView):
         self._offsets, self._lists = offsets, lists[:pairs]
         self.num_gaussians = int(np.count_nonzero(keep))
         self._by_index = None
-        self._forget_keep()
         return self
 
     def subset(self, keep) -> "PreparedView":
