@@ -25,9 +25,10 @@ prediction (:func:`clearsplat.synth.reconstruct`) is written out as two kinds of
     ``round(p / voxel)``, voxels in sorted key order, confidence-softmax weights, positions and
     raw channels averaged, the voxel side chosen for about 5 pixels per voxel.
     :func:`~clearsplat.adapters.associate.associate_fused` gives each voxel a view from the
-    images. A voxel is a distractor voxel when most of its pixels are a distractor's; its view
-    is the majority view of those pixels. Reported: the share of distractor voxels given their
-    distractor's view; for the recovered association and for the majority-view association
+    images, or shares it among the views (-1). A voxel is a distractor voxel when most of its
+    pixels are a distractor's; its view is the majority view of those pixels. Reported: the
+    share of distractor voxels given their distractor's view, and of all voxels shared; for
+    the recovered association and for the majority-view association
     (what an adapter does when the voxel map is known): recall of distractor voxels, share of
     the exact-removal PSNR gain (removing exactly the distractor voxels) and share of the other
     voxels removed; the filter's time on the fused scene (recovered association) against its
@@ -282,6 +283,7 @@ def fused_case(world, scene, truth, *, seed: int) -> dict:
     t_assoc = time.perf_counter() - t0
     row = {"voxels": k, "voxel_size": size, "distractor_voxels": int(dvox.sum()),
            "assoc_s": t_assoc, "ambiguous": float(rec.ambiguous.mean()),
+           "shared": float(np.mean(rec.view_id == -1)),
            "view_right": float(np.mean(rec.view_id[dvox] == dview[dvox])) if dvox.any()
            else float("nan")}
     base = _psnr(fused, None, world)
@@ -342,16 +344,17 @@ def format_tables(ordered, video, fused) -> str:
                      f"{100 * r['right_view']:.2f} % | {100 * r['right_pixel']:.2f} % | "
                      "| | | | | |")
     lines += ["", "(b) Voxel-fused export (`associate_fused` against the majority view)", "",
-              ("| family | views | seed | voxels | distractor voxels | view right | ambiguous | "
-               "recall rec. | of exact rec. | other rec. | recall maj. | of exact maj. | "
-               "other maj. | filter s fused / per-pixel |"),
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+              ("| family | views | seed | voxels | distractor voxels | view right | shared | "
+               "ambiguous | recall rec. | of exact rec. | other rec. | recall maj. | "
+               "of exact maj. | other maj. | filter s fused / per-pixel |"),
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in fused:
         ex = r["exact_gain"]
         lines.append(
             f"| {r['family']} | {r['views']} | {r['seed']} | {r['voxels']:,} | "
             f"{r['distractor_voxels']:,} | {100 * r['view_right']:.1f} % | "
-            f"{100 * r['ambiguous']:.2f} % | {r['recovered_recall']:.3f} | "
+            f"{100 * r['shared']:.1f} % | {100 * r['ambiguous']:.2f} % | "
+            f"{r['recovered_recall']:.3f} | "
             f"{100 * _share(r['recovered_gain'], ex):.0f} % | "
             f"{100 * r['recovered_other']:.2f} % | {r['majority_recall']:.3f} | "
             f"{100 * _share(r['majority_gain'], ex):.0f} % | {100 * r['majority_other']:.2f} % | "

@@ -236,9 +236,12 @@ def test_non_integer_view_id(plyfile):
     p = plyfile(ply(with_column(props(), "view_id", [0, 1.5, 2, 0], typ="float")))
     with raises(str(p), "view_id", "must hold integers, got 1.5 at vertex 1"):
         cio.read_ply(p)
-    p = plyfile(ply(with_column(props(), "view_id", [0, -1, 2, 0])), name="neg.ply")
-    with raises(str(p), "view_id", "view id -1 at vertex 1 is negative"):
+    p = plyfile(ply(with_column(props(), "view_id", [0, -2, 2, 0])), name="neg.ply")
+    with raises(str(p), "view_id", "view id -2 at vertex 1 is below -1"):
         cio.read_ply(p)
+    # -1: shared by several views (a fused export), read as it is
+    p = plyfile(ply(with_column(props(), "view_id", [0, -1, 2, 0])), name="shared.ply")
+    assert cio.read_ply(p)[1].tolist() == [0, -1, 2, 0]
 
 
 def test_every_truncation_and_corruption_is_a_clear_error(tmp_path):
@@ -309,7 +312,7 @@ def test_write_refuses_bad_index_columns(tmp_path):
     g, out = _gaussians(), tmp_path / "o.ply"
     with raises(str(out), "view_id", "expected 4 values"):
         cio.write_ply(out, g, view_id=[0, 1])
-    with raises(str(out), "view_id", "values must be >= 0"):
+    with raises(str(out), "view_id", "values must be >= -1"):
         cio.write_ply(out, g, view_id=[0, 1, -2, 0])
     with raises(str(out), "pixel_id", "values must be >= -1"):
         cio.write_ply(out, g, pixel_id=[0, 1, -2, 0])

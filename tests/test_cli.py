@@ -361,8 +361,10 @@ CASES = {
                                    for c in range(4)], PLY, "rot_0..3", "zero quaternion"),
     "view_id out of range": (lambda r: edit_ply(r, set_value("view_id", 5, 3)), PLY, "view_id",
                              "out of range"),
-    "view_id negative": (lambda r: edit_ply(r, set_value("view_id", 5, -1)), PLY, "view_id",
-                         "negative"),
+    "view_id negative": (lambda r: edit_ply(r, set_value("view_id", 5, -2)), PLY, "view_id",
+                         "below -1"),
+    "shared with a pixel": (lambda r: edit_ply(r, set_value("view_id", 5, -1)), PLY,
+                            "pixel_id", "out of range for view -1"),
     "pixel_id out of range": (lambda r: edit_ply(r, set_value("pixel_id", 5, 32 * 56)), PLY,
                               "pixel_id", "out of range"),
     # cameras.json
@@ -430,10 +432,11 @@ def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, c
     line = next(x for x in stdout.splitlines() if x.startswith("associated "))
     assert line.startswith(f"associated {n:,} Gaussians from images: ") and \
         line.endswith("ambiguous (the PLY has no view_id)")
-    got, ambiguous = (int(x.replace(",", "")) for x in
-                      line.split(": ")[1].split(" (")[0].replace(" got a view", "")
-                      .replace(" ambiguous", "").split(", "))
-    assert got + ambiguous == n and got > 0
+    got, shared, ambiguous = (int(x.replace(",", "")) for x in
+                              line.split(": ")[1].split(" (")[0].replace(" got a view", "")
+                              .replace(" shared by several views", "")
+                              .replace(" ambiguous", "").split(", "))
+    assert got + shared + ambiguous == n and got > 0 and shared > 0
     assert np.load(tmp_path / "out" / "removed.npy").shape == (n,)
     # ... and the commands that show a filter output take the same bundle with it.
     cam = tmp_path / "cam.json"

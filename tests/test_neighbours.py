@@ -243,17 +243,28 @@ def test_held_masks_through_the_view_index_equal_the_gather(street):
     # view's members; they must equal hoods[j][view_id], also with views in shuffled order.
     from clearsplat.filter.association import ViewIndex
     from clearsplat.filter.backend import held_mask
+    from clearsplat.scene import Scene
     scene, _ = street
     rng = np.random.default_rng(0)
     shuffled = scene.subset(rng.permutation(len(scene)))
-    for s in (scene, shuffled):
+    # Some Gaussians shared by the views (view id -1, a fused export): in no view's mask, and
+    # held by every neighbourhood.
+    shared = shuffled.view_id.copy()
+    shared[rng.uniform(size=len(shared)) < 0.2] = -1
+    shared = Scene(shuffled.gaussians, shared, np.where(shared < 0, -1, shuffled.pixel_id),
+                   shuffled.cameras, shuffled.images)
+    for s in (scene, shuffled, shared):
         index = ViewIndex(s)
+        mine = s.view_id >= 0
         for _ in range(5):
             views = rng.uniform(size=s.num_views) < 0.4
-            np.testing.assert_array_equal(index.views_mask(views, len(s)), views[s.view_id])
+            np.testing.assert_array_equal(index.views_mask(views, len(s)),
+                                          mine & views[s.view_id])
         hoods = neighbourhoods(s, 3, 2)
         for j in range(s.num_views):
-            np.testing.assert_array_equal(held_mask(s, hoods, j, index), hoods[j][s.view_id])
+            want = ~mine | hoods[j][s.view_id]
+            np.testing.assert_array_equal(held_mask(s, hoods, j, index), want)
+            np.testing.assert_array_equal(held_mask(s, hoods, j), want)
         assert held_mask(s, None, 0, index) is None
 
 

@@ -259,6 +259,26 @@ def test_bad_view_ids_get_one_line(video, tmp_path):
     assert not (tmp_path / ".out.clearsplat-windows").exists()
 
 
+def test_shared_gaussians_are_filtered_whole(video, tmp_path, monkeypatch, capsys):
+    # Gaussians shared by several views (view id -1, a fused export) belong to no window: the
+    # windows refuse them in one line, and the command filters such a capture whole.
+    import shutil
+    import clearsplat.batch.windows as w
+    shared = tmp_path / "shared"
+    shutil.copytree(video, shared)
+    g, view_id, pixel_id = read_ply(shared / "gaussians.ply")
+    view_id[:40], pixel_id[:40] = -1, -1
+    write_ply(shared / "gaussians.ply", g, view_id=view_id, pixel_id=pixel_id)
+    with pytest.raises(ClearsplatError, match="40 Gaussians are shared by several views") as e:
+        filter_windows(shared, tmp_path / "out", **OPTIONS)
+    assert e.value.field == "view_id" and not (tmp_path / "out").exists()
+    monkeypatch.setattr(w, "WINDOWS_FROM", 10)
+    assert main(["filter", str(shared), "--out", str(tmp_path / "whole")]) == 0
+    assert "windows" not in capsys.readouterr().out
+    assert "windows" not in json.loads((tmp_path / "whole" / "summary.json").read_text())
+    assert read_ply(tmp_path / "whole" / "gaussians.ply")[1].min() == -1
+
+
 def test_the_command_uses_windows_from_the_threshold(video, tmp_path, monkeypatch, capsys):
     import clearsplat.batch.windows as w
     monkeypatch.setattr(w, "WINDOWS_FROM", 10)

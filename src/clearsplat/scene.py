@@ -11,13 +11,16 @@ import numpy as np
 from .cameras import Camera
 from .errors import ClearsplatError
 
-__all__ = ["Gaussians", "Scene", "RenderSettings", "SH_C0", "SH_COUNTS", "rgb_to_sh_dc",
-           "sh_dc_to_rgb"]
+__all__ = ["Gaussians", "Scene", "RenderSettings", "SH_C0", "SH_COUNTS", "SHARED",
+           "rgb_to_sh_dc", "sh_dc_to_rgb"]
 
 #: Zeroth-order real spherical-harmonic constant: colour = SH_C0 * f_dc + 0.5.
 SH_C0 = 0.28209479177387814
 #: Coefficients per colour channel of SH degrees 0 to 4.
 SH_COUNTS = (1, 4, 9, 16, 25)
+#: ``Scene.view_id`` of a Gaussian that no single view made: fused static content that
+#: several views see alike (:func:`clearsplat.adapters.associate_fused`).
+SHARED = -1
 
 
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
@@ -227,7 +230,10 @@ class Scene:
     gaussians : Gaussians
         The N predicted Gaussians.
     view_id : (N,) int32
-        Index of the input view whose prediction produced each Gaussian.
+        Index of the input view whose prediction produced each Gaussian, or :data:`SHARED`
+        (-1) for one that several views made together and see alike (fused static content):
+        the filter keeps it in every view's render without that view's own Gaussians and maps
+        no region to it. A shared Gaussian has ``pixel_id`` -1.
     pixel_id : (N,) int64
         ``row * width + col`` in that view's image, or -1 where the model is not
         pixel-aligned. Several Gaussians may share a pixel.
@@ -317,18 +323,19 @@ class Scene:
                 raise ClearsplatError(f"expected a Camera, got {type(cam).__name__}",
                                       path=path, field=f"cameras[{i}]")
         if n:
-            bad = (self.view_id < 0) | (self.view_id >= v)
+            bad = (self.view_id < SHARED) | (self.view_id >= v)
             if bad.any():
                 i = int(np.argmax(bad))
                 raise ClearsplatError(f"view id {int(self.view_id[i])} out of range 0..{v - 1} "
-                                      f"(Gaussian {i})", path=path, field="view_id")
-            sizes = np.array([c.width * c.height for c in self.cameras], dtype=np.int64)
-            limit = sizes[self.view_id]
+                                      f"or {SHARED} (Gaussian {i})", path=path, field="view_id")
+            sizes = np.array([0] + [c.width * c.height for c in self.cameras], dtype=np.int64)
+            limit = sizes[self.view_id + 1]     # a shared Gaussian's pixel id can only be -1
             bad = (self.pixel_id < -1) | (self.pixel_id >= limit)
             if bad.any():
                 i = int(np.argmax(bad))
+                shared = " (shared: no pixel)" if self.view_id[i] == SHARED else ""
                 raise ClearsplatError(f"pixel id {int(self.pixel_id[i])} out of range for view "
-                                      f"{int(self.view_id[i])} (Gaussian {i})",
+                                      f"{int(self.view_id[i])}{shared} (Gaussian {i})",
                                       path=path, field="pixel_id")
         if self.images is not None:
             if len(self.images) != v:

@@ -18,8 +18,8 @@ view and pixel made each Gaussian, this module recovers them:
 - :func:`associate_fused`: Gaussians that mix pixels of several views (AnySplat's and
   WorldMirror's voxel fusion) or come from any trainer, in no useful order. From renders of
   every input camera: a Gaussian whose colour agrees with one view's image only (a transient)
-  goes to that view; one that several views see agreeing (static content) to the view that
-  sees it most; ``pixel_id = -1``.
+  goes to that view; one that several views, most of those that see it, see agreeing (static
+  content) is shared by them (``view_id = -1``); ``pixel_id = -1``.
 - :func:`normalised_frame`: the frame Depth Anything 3 writes its Gaussians in when it is
   given poses (camera 0 the identity, median camera distance 1), as the similarity back to the
   cameras' frame.
@@ -38,7 +38,7 @@ import numpy as np
 from ..cameras import Camera
 from ..errors import ClearsplatError
 from ..render import prepare
-from ..scene import Gaussians, RenderSettings, Scene, sh_dc_to_rgb
+from ..scene import SHARED, Gaussians, RenderSettings, Scene, sh_dc_to_rgb
 
 __all__ = ["Association", "Similarity", "associate_centred", "associate_fused",
            "associate_ordered", "normalised_frame", "CENTRE_TOLERANCE", "CENTRE_RATIO"]
@@ -83,7 +83,8 @@ class Association:
     Attributes
     ----------
     view_id : (N,) int64
-        Input view of each Gaussian, in ``[0, V)``.
+        Input view of each Gaussian, in ``[0, V)``, or -1 (:data:`~clearsplat.scene.SHARED`)
+        for static content several views see alike (:func:`associate_fused`).
     pixel_id : (N,) int64
         ``row * width + col`` in that view's image, or -1 where there is none (fused
         Gaussians; a vertex that does not project into its view's image).
@@ -106,10 +107,12 @@ class Association:
 
     def summary(self) -> str:
         """One line: ``associated 123,456 Gaussians from geometry: 120,001 got a view, 3,455
-        ambiguous``."""
+        ambiguous`` (and, where there are any, ``..., 60,000 shared by several views``)."""
         n, amb = len(self), int(np.count_nonzero(self.ambiguous))
-        return (f"associated {n:,} Gaussians from {self.source}: {n - amb:,} got a view, "
-                f"{amb:,} ambiguous")
+        shared = int(np.count_nonzero(self.view_id == SHARED))
+        return (f"associated {n:,} Gaussians from {self.source}: {n - amb - shared:,} got a "
+                f"view, " + (f"{shared:,} shared by several views, " if shared else "")
+                + f"{amb:,} ambiguous")
 
     def to_scene(self, gaussians: Gaussians, cameras, images=None, *,
                  render_settings: RenderSettings | None = None) -> Scene:
@@ -542,18 +545,21 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
       image of the view that saw it only: from the others it covers what their images show
       behind it), or content that only one view sees. It goes to that view, as a per-pixel
       model would have it.
-    - Several: multi-view content (static). It goes to the view that sees it most (the largest
-      ``W``), as a pixel-aligned model predicts each Gaussian from a view that sees it: each
-      view then owns what it sees best, and what the filter measures on a view's own
-      Gaussians (their colour noise, their depths at their pixels) is measured where they
-      are seen. A fused Gaussian has no copy in the other views, so the owner's exclusion
-      render (the filter's render without that view's own Gaussians) loses it: a region the
-      filter proposes there holds static content, which the other views, where removing it
-      worsens the match to their images, reject. (Giving it to a view that sees it least, to
-      spare every exclusion render, measured worse: a view's own statistics then count
-      Gaussians it barely sees, and the static content behind a view's transient, which that
-      view sees least, leaves its exclusion render where the filter looks for what the
-      transient hides; ``docs/benchmarks.md``, "Association from geometry".)
+    - Several, and more than half of the views that see it (``W >= min_weight``): static
+      content. It is **shared** (``view_id`` :data:`~clearsplat.scene.SHARED`, -1): no single
+      view made it. A per-pixel model predicts static content once from each view that sees
+      it, so a view's render without its own Gaussians (the filter's exclusion render) still
+      shows that content through the other views' copies; a fused Gaussian has no copy, and
+      giving it to any one view would open a hole in that view's exclusion render, which the
+      filter proposes as a region and, where the Gaussians there render a little off from the
+      other views, removes. Shared, it stays in every view's exclusion render and no region
+      maps to it. (Given to the view that sees it most instead, up to 1.71 % of the other
+      voxels of the voxel-fused benchmark were removed, against at most 0.88 % shared:
+      ``CHANGELOG.md``, 0.11.0.)
+    - Several, but not most of those that see it: a transient that two frames caught at
+      nearly the same place (each copy agrees with its own frame; the other views that look
+      there see it disagreeing), or static content seen through other views' transients. It
+      goes to the view that sees it most, where the filter can judge it as a region.
     - None (no view sees it agreeing with a summed weight of ``min_weight``): its best view;
       where no colour agrees anywhere, the view that sees it largest (where the filter can find
       it as a region that disagrees with the image); and if no camera renders it at all, the
@@ -608,10 +614,8 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
     n = len(gaussians)
     total, agreeing = _view_sums(gaussians, cameras, images, colour_sigma=colour_sigma,
                                  settings=settings, num_threads=num_threads)
-    view_id, multi, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=agree_ratio,
-                                                      min_weight=min_weight)
-    if multi.any():
-        view_id[multi] = np.argmax(total[multi], axis=1)
+    view_id, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=agree_ratio,
+                                               min_weight=min_weight)
     if unseen.any():
         view_id[unseen] = _facing_view(gaussians.means[unseen].astype(np.float64), cameras)
     return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
@@ -645,16 +649,16 @@ def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, se
 
 
 def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float,
-                  min_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  min_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The view of each Gaussian from ``_view_sums``' ``W`` and ``A`` (see
     :func:`associate_fused`).
 
     Returns
     -------
     view_id : (N,) int64
-        The best view (the largest ``A * r``; where no colour agrees, the largest ``W``).
-    multi : (N,) bool
-        Several views see it agreeing: its view is to be the one that sees it most.
+        :data:`~clearsplat.scene.SHARED` where several views and most of those that see it
+        see it agreeing; where several do but not most, the one that sees it most; else the
+        best view (the largest ``A * r``; where no colour agrees, the largest ``W``).
     ambiguous : (N,) bool
         No view sees it agreeing.
     unseen : (N,) bool
@@ -670,11 +674,17 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         r = a / np.maximum(w, 1e-30)
         best = np.argmax(a * r, axis=1)
         r_best = r[np.arange(len(w)), best]
-        ok = (w >= min_weight) & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
-        count[rows] = ok.sum(axis=1)
-        view_id[rows] = np.where(r_best > 0, best, np.argmax(w, axis=1))
+        seeing = w >= min_weight
+        ok = seeing & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
+        c = ok.sum(axis=1)
+        count[rows] = c
+        v = np.where(r_best > 0, best, np.argmax(w, axis=1))
+        multi = c >= 2
+        v[multi] = np.argmax(w[multi], axis=1)
+        v[multi & (2 * c > seeing.sum(axis=1))] = SHARED
+        view_id[rows] = v
         unseen[rows] = w.max(axis=1, initial=0.0) <= 0
-    return view_id, count >= 2, count == 0, unseen
+    return view_id, count == 0, unseen
 
 
 def _facing_view(means: np.ndarray, cameras) -> np.ndarray:

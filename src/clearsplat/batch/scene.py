@@ -103,8 +103,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         Filter the capture in windows of consecutive views (:func:`clearsplat.batch.
         filter_windows`: memory bounded by a window). Default: from
         :data:`~clearsplat.batch.windows.WINDOWS_FROM` views on, where the bundle's PLY is
-        binary with ``view_id`` and no report is asked for, and whenever ``workers`` or
-        ``address`` is given.
+        binary with ``view_id`` (none shared) and no report is asked for, and whenever
+        ``workers`` or ``address`` is given.
     workers, address : optional
         Run the windows as Ray tasks: on a local instance with ``workers`` CPUs, or on the
         cluster at ``address``.
@@ -174,7 +174,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
 
 def _windowed(scene) -> bool:
     """Whether the bundle ``scene`` is filtered in windows by default: enough views, and a
-    binary PLY with ``view_id`` that can be read in pieces."""
+    binary PLY with ``view_id`` that can be read in pieces, none shared by several views
+    (-1: a fused export, whose Gaussians no window can cut by view)."""
     from ..io import load_cameras
     from ..io.ply import PlyRows
     from .windows import uses_windows
@@ -182,7 +183,8 @@ def _windowed(scene) -> bool:
         cameras, _ = load_cameras(scene)
         if not uses_windows(len(cameras)):
             return False
-        return "view_id" in PlyRows(Path(scene) / "gaussians.ply").dtype.names
+        ply = PlyRows(Path(scene) / "gaussians.ply")
+        return "view_id" in ply.dtype.names and not (ply.column("view_id") == -1).any()
     except ClearsplatError:
         return False        # the whole-capture path reports the bad input
 

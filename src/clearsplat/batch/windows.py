@@ -337,6 +337,10 @@ def _checked_input(bundle: Path):
         raise ClearsplatError("property 'view_id' is missing: a capture filtered in windows "
                               "needs each Gaussian's view", path=ply.path, field="view_id")
     views = ply.column("view_id")
+    if (views == -1).any():
+        raise ClearsplatError(f"{int(np.count_nonzero(views == -1)):,} Gaussians are shared by "
+                              "several views (view id -1, a fused export): windows cut a capture "
+                              "by view; filter it whole", path=ply.path, field="view_id")
     bad = (views < 0) | (views >= len(cameras)) | (views != np.round(views))
     if bad.any():
         i = int(np.argmax(bad))

@@ -232,13 +232,14 @@ class TorchBackend(FilterBackend):
 
 
 def held_mask(scene, hoods, j: int, index=None) -> np.ndarray | None:
-    """(N,) bool: the Gaussians of the views in camera j's neighbourhood ``hoods[j]``
-    (None without ``hoods``), through ``index`` (a ViewIndex of ``scene``) where given."""
+    """(N,) bool: the Gaussians of the views in camera j's neighbourhood ``hoods[j]``, and the
+    shared ones (None without ``hoods``), through ``index`` (a ViewIndex of ``scene``) where
+    given."""
     if hoods is None:
         return None
     if index is None:
-        return hoods[j][scene.view_id]
-    return index.views_mask(hoods[j], len(scene))
+        return np.append(hoods[j], True)[scene.view_id]     # SHARED (-1): the last entry
+    return index.views_mask(hoods[j], len(scene)) | (scene.view_id < 0)
 
 
 def backend_for(config: FilterConfig) -> FilterBackend:

@@ -85,7 +85,8 @@ def exclusion_renders(state, touched: dict, previous=None) -> ExclusionRenders:
         pv = views[i]
         state.lap("prepare")
         any_visible |= pv.num_visible > 0
-        seen[i] = np.bincount(scene.view_id[pv.centres_inside()], minlength=scene.num_views)
+        inside = scene.view_id[pv.centres_inside()]
+        seen[i] = np.bincount(inside[inside >= 0], minlength=scene.num_views)   # not shared
         if i in touched:    # the previous round's renders, where its removals changed nothing
             r_full, r_excl = _update_pair(pv, own[i], touched[i], previous, i)
         else:

@@ -514,13 +514,13 @@ def seen_by_verifiers(state, candidates: list, margin: float,
     means = scene.gaussians.means
     # Per view, the margin its Gaussians and its surface are judged with.
     per_view = np.array([margin if m is None else max(margin, m)
-                         for m in (view_margins or [None] * scene.num_views)])
+                         for m in (view_margins or [None] * scene.num_views)] + [margin])
     own: dict = {}
     for c in candidates:
         if c.expanded is None or c.expanded.size == 0 or not c.verify_views:
             continue
         pts = means[c.expanded]
-        theirs = per_view[scene.view_id[c.expanded]]
+        theirs = per_view[scene.view_id[c.expanded]]     # a shared one's (-1): margin
         seen = np.zeros(c.expanded.size, dtype=bool)
         for j in c.verify_views:
             if j not in own:

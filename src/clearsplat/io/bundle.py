@@ -600,12 +600,14 @@ def _check_association(view_id, pixel_id, cameras, ply) -> None:
         raise ClearsplatError(f"view id {int(view_id[i])} at vertex {i} is out of range: the "
                               f"bundle has {v} cameras (0..{v - 1})", path=ply, field="view_id")
     if pixel_id is not None and len(pixel_id):
-        limit = np.array([c.width * c.height for c in cameras], dtype=np.int64)[view_id]
+        # A shared Gaussian (view id -1) has no pixel: its limit is 0.
+        limit = np.array([0] + [c.width * c.height for c in cameras], dtype=np.int64)[view_id + 1]
         bad = (pixel_id < -1) | (pixel_id >= limit)
         if bad.any():
             i = int(np.argmax(bad))
+            expect = f"-1 or 0..{int(limit[i]) - 1}" if limit[i] else "-1: shared, no pixel"
             raise ClearsplatError(f"pixel id {int(pixel_id[i])} at vertex {i} is out of range "
-                                  f"for view {int(view_id[i])} (-1 or 0..{int(limit[i]) - 1})",
+                                  f"for view {int(view_id[i])} ({expect})",
                                   path=ply, field="pixel_id")
 
 

@@ -377,7 +377,8 @@ def read_ply(path, *, saturated_logits: bool = False
         custom fields) are in ``gaussians.extra`` with their on-disk type; private
         ``RAW_PREFIX`` entries keep the raw columns for an exact round trip.
     view_id : (N,) int32 or None
-        The ``view_id`` property, or None when the file has none.
+        The ``view_id`` property (-1: shared by several views), or None when the file has
+        none.
     pixel_id : (N,) int64 or None
         The ``pixel_id`` property, or None when the file has none.
 
@@ -502,9 +503,11 @@ def _columns_to_gaussians(cols: dict, types: dict, comments: list, path, *,
             if col.dtype == np.uint64 and (col > np.iinfo(np.int64).max).any():
                 raise ClearsplatError("value too large", path=path, field=name)
             values = col.astype(np.int64)
-            if name == "view_id" and ((values < 0) | (values > np.iinfo(np.int32).max)).any():
-                i = int(np.argmax((values < 0) | (values > np.iinfo(np.int32).max)))
-                raise ClearsplatError(f"view id {values[i]} at vertex {i} is negative or too "
+            bad = ((values < -1) | (values > np.iinfo(np.int32).max)   # -1: shared by views
+                   if name == "view_id" else None)
+            if bad is not None and bad.any():
+                i = int(np.argmax(bad))
+                raise ClearsplatError(f"view id {values[i]} at vertex {i} is below -1 or too "
                                       "large", path=path, field=name)
             raw[RAW_PREFIX + name] = col
             index[name] = values.astype(np.int32) if name == "view_id" else values
@@ -544,7 +547,7 @@ def write_ply(path, gaussians: Gaussians, *, view_id=None, pixel_id=None) -> Non
         written with their dtype. Raw columns kept by :func:`read_ply` are reused where the
         in-memory value is unchanged (see the module docstring).
     view_id : (N,) array_like of int, optional
-        Written as the ``view_id`` property when given.
+        Written as the ``view_id`` property when given (-1: shared by several views).
     pixel_id : (N,) array_like of int, optional
         Written as the ``pixel_id`` property when given (-1: not pixel-aligned).
 
@@ -583,7 +586,7 @@ def write_ply(path, gaussians: Gaussians, *, view_id=None, pixel_id=None) -> Non
     for name, v in public.items():
         if name not in _NORMALS:
             cols[name] = v
-    for name, values, low in (("view_id", view_id, 0), ("pixel_id", pixel_id, -1)):
+    for name, values, low in (("view_id", view_id, -1), ("pixel_id", pixel_id, -1)):
         if values is not None:
             cols[name] = _index_column(g, name, values, n, low, path)
 
