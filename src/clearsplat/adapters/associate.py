@@ -593,7 +593,7 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
     Returns
     -------
     Association
-        ``source = "images"``, ``pixel_id = -1``.
+        ``source = "images"``, ``pixel_id = -1``; ``view_id = -1`` where shared.
     """
     if isinstance(gaussians, Scene):
         settings = settings or gaussians.render_settings
