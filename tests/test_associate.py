@@ -357,7 +357,7 @@ def _slow_choose(total, agreeing, agree_ratio, min_weight):
         if len(agree) >= 2 and len(agree) > len(seeing) / 2:
             views.append(-1)
         elif len(agree) >= 2:
-            views.append(int(np.argmax(w)))
+            views.append(max(agree, key=lambda v: (w[v], -v)))
         else:
             views.append(best if r[best] > 0 else int(np.argmax(w)))
         ambiguous.append(len(agree) == 0)

@@ -554,12 +554,13 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
       filter proposes as a region and, where the Gaussians there render a little off from the
       other views, removes. Shared, it stays in every view's exclusion render and no region
       maps to it. (Given to the view that sees it most instead, up to 1.71 % of the other
-      voxels of the voxel-fused benchmark were removed, against at most 0.88 % shared:
+      voxels of the voxel-fused benchmark were removed, against at most 0.95 % shared:
       ``CHANGELOG.md``, 0.11.0.)
     - Several, but not most of those that see it: a transient that two frames caught at
       nearly the same place (each copy agrees with its own frame; the other views that look
       there see it disagreeing), or static content seen through other views' transients. It
-      goes to the view that sees it most, where the filter can judge it as a region.
+      goes to the one of them (the views that see it agreeing) that sees it most, where the
+      filter can judge it as a region.
     - None (no view sees it agreeing with a summed weight of ``min_weight``): its best view;
       where no colour agrees anywhere, the view that sees it largest (where the filter can find
       it as a region that disagrees with the image); and if no camera renders it at all, the
@@ -657,8 +658,8 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
     -------
     view_id : (N,) int64
         :data:`~clearsplat.scene.SHARED` where several views and most of those that see it
-        see it agreeing; where several do but not most, the one that sees it most; else the
-        best view (the largest ``A * r``; where no colour agrees, the largest ``W``).
+        see it agreeing; where several do but not most, the one of them that sees it most;
+        else the best view (the largest ``A * r``; where no colour agrees, the largest ``W``).
     ambiguous : (N,) bool
         No view sees it agreeing.
     unseen : (N,) bool
@@ -680,7 +681,7 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         count[rows] = c
         v = np.where(r_best > 0, best, np.argmax(w, axis=1))
         multi = c >= 2
-        v[multi] = np.argmax(w[multi], axis=1)
+        v[multi] = np.argmax(np.where(ok, w, -1.0)[multi], axis=1)
         v[multi & (2 * c > seeing.sum(axis=1))] = SHARED
         view_id[rows] = v
         unseen[rows] = w.max(axis=1, initial=0.0) <= 0
