@@ -51,7 +51,7 @@ from clearsplat.features import get_extractor
 from clearsplat.filter import FilterConfig, filter_distractors
 from clearsplat.metrics import psnr
 from clearsplat.render import render_batch
-from clearsplat.scene import Gaussians, Scene
+from clearsplat.scene import SHARED, Gaussians, Scene
 from clearsplat.synth import distractor_truth, make_world, reconstruct
 
 #: Acceptance targets.
@@ -283,7 +283,7 @@ def fused_case(world, scene, truth, *, seed: int) -> dict:
     t_assoc = time.perf_counter() - t0
     row = {"voxels": k, "voxel_size": size, "distractor_voxels": int(dvox.sum()),
            "assoc_s": t_assoc, "ambiguous": float(rec.ambiguous.mean()),
-           "shared": float(np.mean(rec.view_id == -1)),
+           "shared": float(np.mean(rec.view_id == SHARED)),
            "view_right": float(np.mean(rec.view_id[dvox] == dview[dvox])) if dvox.any()
            else float("nan")}
     base = _psnr(fused, None, world)

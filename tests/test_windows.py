@@ -272,9 +272,14 @@ def test_shared_gaussians_are_filtered_whole(video, tmp_path, monkeypatch, capsy
     with pytest.raises(ClearsplatError, match="40 Gaussians are shared by several views") as e:
         filter_windows(shared, tmp_path / "out", **OPTIONS)
     assert e.value.field == "view_id" and not (tmp_path / "out").exists()
+    with pytest.raises(w.SharedViewsError):             # windows asked for: refused
+        filter_scene(shared, tmp_path / "out", windows=True)
+    assert not (tmp_path / "out").exists()
     monkeypatch.setattr(w, "WINDOWS_FROM", 10)
     assert main(["filter", str(shared), "--out", str(tmp_path / "whole")]) == 0
-    assert "windows" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "40 Gaussians are shared by several views (a fused export): filtered whole" in out
+    assert "window of about" not in out and "windows of about" not in out
     assert "windows" not in json.loads((tmp_path / "whole" / "summary.json").read_text())
     assert read_ply(tmp_path / "whole" / "gaussians.ply")[1].min() == -1
 

@@ -23,6 +23,13 @@ SH_COUNTS = (1, 4, 9, 16, 25)
 SHARED = -1
 
 
+def pixel_limits(cameras, view_id: np.ndarray) -> np.ndarray:
+    """(N,) int64: per Gaussian, the pixel count of its view's image, which its ``pixel_id``
+    must stay below; 0 for a shared one (view id -1), which has no pixel."""
+    sizes = np.array([0] + [c.width * c.height for c in cameras], dtype=np.int64)
+    return sizes[np.asarray(view_id) + 1]
+
+
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
     """DC coefficients (..., 3) that render as the view-independent colour ``rgb``."""
     return ((np.asarray(rgb, dtype=np.float32) - 0.5) / SH_C0).astype(np.float32)
@@ -328,8 +335,7 @@ class Scene:
                 i = int(np.argmax(bad))
                 raise ClearsplatError(f"view id {int(self.view_id[i])} out of range 0..{v - 1} "
                                       f"or {SHARED} (Gaussian {i})", path=path, field="view_id")
-            sizes = np.array([0] + [c.width * c.height for c in self.cameras], dtype=np.int64)
-            limit = sizes[self.view_id + 1]     # a shared Gaussian's pixel id can only be -1
+            limit = pixel_limits(self.cameras, self.view_id)
             bad = (self.pixel_id < -1) | (self.pixel_id >= limit)
             if bad.any():
                 i = int(np.argmax(bad))

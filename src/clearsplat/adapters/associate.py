@@ -666,8 +666,8 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         No camera renders it at all: its view is to come from geometry.
     """
     n = total.shape[0]
-    view_id, count = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
-    unseen = np.empty(n, dtype=bool)
+    view_id = np.empty(n, dtype=np.int64)
+    ambiguous, unseen = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
     for lo in range(0, n, _CHUNK):      # float64 work held for one chunk of rows at a time
         rows = slice(lo, min(lo + _CHUNK, n))
         w = total[rows].astype(np.float64)
@@ -678,14 +678,14 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         seeing = w >= min_weight
         ok = seeing & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
         c = ok.sum(axis=1)
-        count[rows] = c
+        ambiguous[rows] = c == 0
         v = np.where(r_best > 0, best, np.argmax(w, axis=1))
         multi = c >= 2
         v[multi] = np.argmax(np.where(ok, w, -1.0)[multi], axis=1)
         v[multi & (2 * c > seeing.sum(axis=1))] = SHARED
         view_id[rows] = v
         unseen[rows] = w.max(axis=1, initial=0.0) <= 0
-    return view_id, count == 0, unseen
+    return view_id, ambiguous, unseen
 
 
 def _facing_view(means: np.ndarray, cameras) -> np.ndarray:

@@ -103,8 +103,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         Filter the capture in windows of consecutive views (:func:`clearsplat.batch.
         filter_windows`: memory bounded by a window). Default: from
         :data:`~clearsplat.batch.windows.WINDOWS_FROM` views on, where the bundle's PLY is
-        binary with ``view_id`` (none shared) and no report is asked for, and whenever
-        ``workers`` or ``address`` is given.
+        binary with ``view_id`` (none shared by several views) and no report is asked for,
+        and whenever ``workers`` or ``address`` is given.
     workers, address : optional
         Run the windows as Ray tasks: on a local instance with ``workers`` CPUs, or on the
         cluster at ``address``.
@@ -126,18 +126,26 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
 
     t0 = time.perf_counter()
     check_output_folder(out, inputs=[scene], force=force)
-    if windows is None:     # Ray asked for: the windows are what it spreads
-        windows = workers is not None or address is not None or \
-            (not report and _windowed(scene))
+    # Ray asked for: the windows are what it spreads
+    asked = bool(windows) or workers is not None or address is not None
+    if windows is None:
+        windows = asked or (not report and _windowed(scene))
     if windows:
-        from .windows import filter_windows
+        from .windows import SharedViewsError, filter_windows
         if report:
             raise ClearsplatError("a capture filtered in windows has no report (it would "
                                   "render the whole capture at once); leave out --report",
                                   field="--report")
-        return filter_windows(scene, out, config=config, keep_all=keep_all,
-                              copy_images=copy_images, force=force, workers=workers,
-                              address=address, progress=progress, log=log)
+        try:
+            return filter_windows(scene, out, config=config, keep_all=keep_all,
+                                  copy_images=copy_images, force=force, workers=workers,
+                                  address=address, progress=progress, log=log)
+        except SharedViewsError as e:   # found before anything is written
+            if asked:
+                raise
+            if log is not None:
+                log(f"{e.count:,} Gaussians are shared by several views (a fused export): "
+                    "filtered whole, not in windows")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         # A PLY without view_id: each Gaussian's view recovered from the images (one line).
@@ -174,8 +182,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
 
 def _windowed(scene) -> bool:
     """Whether the bundle ``scene`` is filtered in windows by default: enough views, and a
-    binary PLY with ``view_id`` that can be read in pieces, none shared by several views
-    (-1: a fused export, whose Gaussians no window can cut by view)."""
+    binary PLY with ``view_id`` that can be read in pieces (one holding Gaussians shared by
+    several views, a fused export, goes whole once the windows find them)."""
     from ..io import load_cameras
     from ..io.ply import PlyRows
     from .windows import uses_windows
@@ -183,8 +191,7 @@ def _windowed(scene) -> bool:
         cameras, _ = load_cameras(scene)
         if not uses_windows(len(cameras)):
             return False
-        ply = PlyRows(Path(scene) / "gaussians.ply")
-        return "view_id" in ply.dtype.names and not (ply.column("view_id") == -1).any()
+        return "view_id" in PlyRows(Path(scene) / "gaussians.ply").dtype.names
     except ClearsplatError:
         return False        # the whole-capture path reports the bad input
 

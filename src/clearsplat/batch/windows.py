@@ -42,6 +42,7 @@ import numpy as np
 from .._memory import return_free_memory
 from ..errors import ClearsplatError
 from ..io.bundle import bundle_camera_file
+from ..scene import SHARED
 
 __all__ = ["Window", "plan_windows", "filter_windows", "uses_windows", "order_breaks",
            "WINDOW_VIEWS", "MARGIN_VIEWS", "WINDOWS_FROM"]
@@ -55,6 +56,17 @@ WINDOWS_FROM = 96
 
 _STATE_SUFFIX = ".clearsplat-windows"
 _PLAN_FILE = "plan.json"
+
+
+class SharedViewsError(ClearsplatError):
+    """The capture holds Gaussians shared by several views (view id -1, a fused export):
+    windows cut a capture by view, so it is filtered whole. ``count``: how many."""
+
+    def __init__(self, count: int, path):
+        super().__init__(f"{count:,} Gaussians are shared by several views (view id -1, a "
+                         "fused export): windows cut a capture by view; filter it whole",
+                         path=path, field="view_id")
+        self.count = count
 
 
 @dataclass(frozen=True)
@@ -255,7 +267,8 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     ------
     ClearsplatError
         Bad input (naming the file and field), an ``out`` that may not be written, or a window
-        that failed (its views and the cause; the windows done are kept for a rerun).
+        that failed (its views and the cause; the windows done are kept for a rerun);
+        :class:`SharedViewsError` where the capture holds Gaussians shared by several views.
     """
     from ..filter import FilterConfig
     from ..filter.pipeline import resolve_auto
@@ -337,10 +350,9 @@ def _checked_input(bundle: Path):
         raise ClearsplatError("property 'view_id' is missing: a capture filtered in windows "
                               "needs each Gaussian's view", path=ply.path, field="view_id")
     views = ply.column("view_id")
-    if (views == -1).any():
-        raise ClearsplatError(f"{int(np.count_nonzero(views == -1)):,} Gaussians are shared by "
-                              "several views (view id -1, a fused export): windows cut a capture "
-                              "by view; filter it whole", path=ply.path, field="view_id")
+    shared = int(np.count_nonzero(views == SHARED))
+    if shared:
+        raise SharedViewsError(shared, ply.path)
     bad = (views < 0) | (views >= len(cameras)) | (views != np.round(views))
     if bad.any():
         i = int(np.argmax(bad))

@@ -45,7 +45,7 @@ import numpy as np
 
 from ..cameras import Camera
 from ..errors import ClearsplatError
-from ..scene import RenderSettings, Scene, register_bundle_writer
+from ..scene import RenderSettings, Scene, pixel_limits, register_bundle_writer
 from .images import read_image, write_image
 from .ply import RAW_PREFIX, atomic_write_bytes, read_ply, write_ply
 
@@ -600,8 +600,7 @@ def _check_association(view_id, pixel_id, cameras, ply) -> None:
         raise ClearsplatError(f"view id {int(view_id[i])} at vertex {i} is out of range: the "
                               f"bundle has {v} cameras (0..{v - 1})", path=ply, field="view_id")
     if pixel_id is not None and len(pixel_id):
-        # A shared Gaussian (view id -1) has no pixel: its limit is 0.
-        limit = np.array([0] + [c.width * c.height for c in cameras], dtype=np.int64)[view_id + 1]
+        limit = pixel_limits(cameras, view_id)
         bad = (pixel_id < -1) | (pixel_id >= limit)
         if bad.any():
             i = int(np.argmax(bad))

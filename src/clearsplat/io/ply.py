@@ -503,12 +503,12 @@ def _columns_to_gaussians(cols: dict, types: dict, comments: list, path, *,
             if col.dtype == np.uint64 and (col > np.iinfo(np.int64).max).any():
                 raise ClearsplatError("value too large", path=path, field=name)
             values = col.astype(np.int64)
-            bad = ((values < -1) | (values > np.iinfo(np.int32).max)   # -1: shared by views
-                   if name == "view_id" else None)
-            if bad is not None and bad.any():
-                i = int(np.argmax(bad))
-                raise ClearsplatError(f"view id {values[i]} at vertex {i} is below -1 or too "
-                                      "large", path=path, field=name)
+            if name == "view_id":                       # -1: shared by several views
+                bad = (values < -1) | (values > np.iinfo(np.int32).max)
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    raise ClearsplatError(f"view id {values[i]} at vertex {i} is below -1 or "
+                                          "too large", path=path, field=name)
             raw[RAW_PREFIX + name] = col
             index[name] = values.astype(np.int32) if name == "view_id" else values
 
