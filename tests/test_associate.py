@@ -9,6 +9,7 @@ random order.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -343,6 +344,27 @@ def test_voxel_fusion_follows_anysplat():
         assert np.all(keys[voxel == k] == first[k])
         lo, hi = (first[k] - 0.5) * size, (first[k] + 0.5) * size
         assert np.all(fused.means[k] >= lo - 1e-5) and np.all(fused.means[k] <= hi + 1e-5)
+
+
+def test_off_surface_measures_depth_from_the_true_surface():
+    world = make_world("object", num_views=2, height=32, width=48, seed=0)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=0, depth_blur=0.0,
+                        depth_noise=0.0)
+    g, views = scene.gaussians, scene.view_id
+    assert not AQ.off_surface(g, views, world).any()          # every centre on its pixel's depth
+    cam = world.cameras[1]
+    centre = cam.camera_to_world[:3, 3]
+    moved = g.means.astype(np.float64).copy()
+    picked = np.flatnonzero(views == 1)[[5, 700, 1200]]
+    # Along the ray through the pixel: 4 % nearer stays on, 6 % farther and 10 % nearer are off.
+    for i, factor in zip(picked, (0.96, 1.06, 0.90)):
+        moved[i] = centre + factor * (moved[i] - centre)
+    g = dataclasses.replace(g, means=moved.astype(g.means.dtype))
+    off = AQ.off_surface(g, views, world)
+    assert np.flatnonzero(off).tolist() == sorted(picked[1:].tolist())
+    shared = views.copy()
+    shared[picked] = -1                                           # shared: never off the surface
+    assert not AQ.off_surface(g, shared, world).any()
 
 
 def _slow_choose(total, agreeing, agree_ratio, min_weight):
