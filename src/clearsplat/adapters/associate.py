@@ -41,7 +41,8 @@ from ..render import prepare
 from ..scene import SHARED, Gaussians, RenderSettings, Scene, sh_dc_to_rgb
 
 __all__ = ["Association", "Similarity", "associate_centred", "associate_fused",
-           "associate_ordered", "normalised_frame", "CENTRE_TOLERANCE", "CENTRE_RATIO"]
+           "associate_ordered", "normalised_frame", "CENTRE_TOLERANCE", "CENTRE_RATIO",
+           "COLOUR_SIGMA", "AGREE_RATIO", "SEEN_WEIGHT"]
 
 #: Pixels a vertex's projection may lie off its pixel's centre, per axis, by default. Depth
 #: Anything 3 moves centres by a predicted xy offset (unbounded in its code, sub-pixel in what
@@ -74,6 +75,17 @@ CENTRE_TOLERANCE = 0.02
 #: than this factor farther from a pixel centre than the first, and farther than
 #: ``CENTRE_TOLERANCE / CENTRE_RATIO``.
 CENTRE_RATIO = 10.0
+#: :func:`associate_fused`: the colour difference (RGB in [0, 1], RMS over the channels) at
+#: which a Gaussian's agreement with a view's image falls to ``exp(-1/2)``: a few levels of an
+#: 8-bit image, so that a colour agrees where the image shows it and not where it shows
+#: another surface.
+COLOUR_SIGMA = 0.03
+#: :func:`associate_fused`: a view sees a Gaussian agreeing when the share of its weight that
+#: agrees is at least this share of the best view's.
+AGREE_RATIO = 0.7
+#: :func:`associate_fused`: the least blending weight, summed over a view's pixels, of a
+#: Gaussian that view sees (the filter's rasterizer association takes 0.05 at one pixel).
+SEEN_WEIGHT = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,7 +328,6 @@ def _segment(outside: np.ndarray, steps: np.ndarray, weights) -> tuple[np.ndarra
 
 
 def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFFSET,
-                      order_weight: float = ORDER_WEIGHT, stall_weight: float = STALL_WEIGHT,
                       min_seen: float = 0.5) -> Association:
     """The view and pixel of each vertex of a per-pixel export written view after view.
 
@@ -325,9 +336,9 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
     cuts, masks, opacity cuts) and centres moved off their pixel's ray by sub-pixel offsets.
 
     Every vertex is projected into every camera. In the run of camera ``v`` a vertex costs 1
-    when it is behind ``v`` or outside its image, ``order_weight`` when its row-major pixel
+    when it is behind ``v`` or outside its image, :data:`ORDER_WEIGHT` when its row-major pixel
     key in ``v`` steps back from the previous vertex's by more than ``max_offset`` offsets
-    explain (a break: the run of one view only moves forward), and ``stall_weight`` when it
+    explain (a break: the run of one view only moves forward), and :data:`STALL_WEIGHT` when it
     stays on the previous pixel or steps back less (:func:`_order_steps`). The sequence is cut
     into consecutive runs, one per camera of ``views`` in order (runs may be empty), at the
     least total cost by a dynamic programme over the run boundaries (:func:`_segment`, O(N V)).
@@ -353,8 +364,6 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
         Anything 3's ``gs_views_interval``: ``range(0, V, interval)``). Default: all, in order.
     max_offset : float
         Largest distance, in pixels per axis, of a centre's projection from its pixel centre.
-    order_weight, stall_weight : float
-        Cost of a break and of a stall inside a run, relative to one vertex outside the image.
     min_seen : float
         Least share of the vertices that must project into their view's image; fewer means
         the cameras do not fit the export (wrong frame, cameras or views).
@@ -374,16 +383,10 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
     views = _checked_views(views, len(cameras))
-    max_offset, order_weight, stall_weight, min_seen = (
-        _number(name, value) for name, value in (("max_offset", max_offset),
-                                                  ("order_weight", order_weight),
-                                                  ("stall_weight", stall_weight),
-                                                  ("min_seen", min_seen)))
-    for name, value in (("max_offset", max_offset), ("order_weight", order_weight),
-                        ("stall_weight", stall_weight)):
-        if not (np.isfinite(value) and value >= 0) or (name == "max_offset" and value == 0):
-            raise ClearsplatError(f"expected a number >= 0 (max_offset > 0), got {value!r}",
-                                  field=name)
+    max_offset, min_seen = (_number(name, value) for name, value in (
+        ("max_offset", max_offset), ("min_seen", min_seen)))
+    if not (np.isfinite(max_offset) and max_offset > 0):
+        raise ClearsplatError(f"expected a number > 0, got {max_offset!r}", field="max_offset")
     if not 0 <= min_seen <= 1:
         raise ClearsplatError(f"expected a share in [0, 1], got {min_seen!r}", field="min_seen")
     n = len(means)
@@ -396,7 +399,7 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
         row, col, ok = _projection(cameras[v], means, max_offset)
         outside[s] = ~ok
         steps[s] = _order_steps(row, col, ok, cameras[v].width, max_offset)
-    bounds, _ = _segment(outside, steps, (0.0, stall_weight, order_weight))
+    bounds, _ = _segment(outside, steps, (0.0, STALL_WEIGHT, ORDER_WEIGHT))
     seg = np.repeat(np.arange(len(views)), np.diff(bounds))
     pick = np.arange(n)
     out, brk = outside[seg, pick], steps[seg, pick] == BREAK
@@ -436,8 +439,7 @@ def _centre_offsets(cam: Camera, means: np.ndarray) -> tuple[np.ndarray, np.ndar
     return pixel, np.where(ok, off, np.inf)
 
 
-def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
-                      ratio: float = CENTRE_RATIO, min_seen: float = 0.5) -> Association:
+def associate_centred(means, cameras, *, min_seen: float = 0.5) -> Association:
     """The view and pixel of each vertex of a per-pixel export whose centres lie on the rays
     through their pixels' centres, in any order.
 
@@ -447,16 +449,17 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
     moved by +0.5 px) but in no order that says which (pruning by opacity, a random subset).
     Projected into its own camera such a centre lands on its pixel's centre, to float32
     round-off; into another camera at a sub-pixel position unrelated to that camera's pixel
-    grid, within ``tolerance`` of a centre with probability ``(2 tolerance)^2``.
+    grid, within :data:`CENTRE_TOLERANCE` of a centre with probability ``(2 tolerance)^2``.
 
     Every vertex is projected into every camera, one camera at a time; its *offset* in a
     camera is the distance of its projection from the centre of the pixel it falls in, along
     the axis where it is larger (:func:`_centre_offsets`). Its view is the camera with the
     smallest offset (the first of equals), its pixel the one it falls in there. It is
-    ambiguous where that offset exceeds ``tolerance`` (no camera puts it on a pixel centre:
+    ambiguous where that offset exceeds the tolerance (no camera puts it on a pixel centre:
     the cameras do not fit, or the centres were computed at a lower precision; then its
     ``pixel_id`` is -1, as its pixel is a guess) or where the
-    second smallest offset is at most ``max(ratio * smallest, tolerance / ratio)`` (two
+    second smallest offset is at most ``max(ratio * smallest, tolerance / ratio)``
+    (:data:`CENTRE_RATIO`; two
     cameras put it there alike: identical cameras, or ones a whole number of pixels apart).
     A vertex no camera sees goes to the camera whose image centre it projects nearest to (or
     that faces it most), with ``pixel_id = -1``.
@@ -469,10 +472,6 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
     cameras : sequence of Camera
         The input cameras, in view-id order, with the principal points in clearsplat's
         convention (pixel ``(row, col)`` centred at ``(col + 0.5, row + 0.5)``).
-    tolerance : float
-        Largest offset, in pixels, of a vertex on its pixel's centre, in ``(0, 0.5)``.
-    ratio : float
-        How much farther, at least (> 1), the second camera must put the vertex.
     min_seen : float
         Least share of the vertices that must project into some camera's image; fewer means
         the cameras do not fit the export.
@@ -490,13 +489,10 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
     """
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
-    tolerance, ratio, min_seen = (_number(name, value) for name, value in (
-        ("tolerance", tolerance), ("ratio", ratio), ("min_seen", min_seen)))
-    for name, value, ok in (("tolerance", tolerance, 0 < tolerance < 0.5),
-                            ("ratio", ratio, ratio > 1), ("min_seen", min_seen,
-                                                          0 <= min_seen <= 1)):
-        if not (np.isfinite(value) and ok):
-            raise ClearsplatError(f"out of range: {value!r}", field=name)
+    min_seen = _number("min_seen", min_seen)
+    if not 0 <= min_seen <= 1:
+        raise ClearsplatError(f"expected a share in [0, 1], got {min_seen!r}", field="min_seen")
+    tolerance, ratio = CENTRE_TOLERANCE, CENTRE_RATIO
     n = len(means)
     best, second = np.full(n, np.inf), np.full(n, np.inf)
     view_id, pixel_id = np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64)
@@ -524,28 +520,26 @@ def associate_centred(means, cameras, *, tolerance: float = CENTRE_TOLERANCE,
 # ------------------------------------------------------------------------------------------------
 # fused Gaussians
 # ------------------------------------------------------------------------------------------------
-def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
-                    agree_ratio: float = 0.7, min_weight: float = 0.05,
-                    settings: RenderSettings | None = None,
+def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | None = None,
                     num_threads: int | None = None) -> Association:
     """The view of each Gaussian from how it reproduces the input images.
 
     For Gaussians that mix pixels of several views (voxel fusion) or that come with no order
     information at all. Every input camera is rendered, one at a time, with the blending weight
     ``alpha * T`` of every (pixel, Gaussian) pair; each pair's agreement ``exp(-e^2 / (2
-    colour_sigma^2))`` says how well the Gaussian's colour (its SH DC term) matches that view's
+    sigma^2))`` (:data:`COLOUR_SIGMA`) says how well the Gaussian's colour (its SH DC term) matches that view's
     input image at the pixel (``e`` the RMS difference over the channels). Per Gaussian and view:
     ``W`` the summed weight (how large the view sees it), ``A`` the agreement-weighted sum and
     ``r = A / W`` the share of it that agrees (:func:`_view_sums`).
 
-    The views that *see it agreeing* have ``W >= min_weight`` and ``r`` at least
-    ``agree_ratio`` times the ``r`` of its best view, the one with the largest ``A * r``.
+    The views that *see it agreeing* have ``W >=`` :data:`SEEN_WEIGHT` and ``r`` at least
+    :data:`AGREE_RATIO` times the ``r`` of its best view, the one with the largest ``A * r``.
 
     - One such view: the Gaussian is what that view alone saw (a transient agrees with the
       image of the view that saw it only: from the others it covers what their images show
       behind it), or content that only one view sees. It goes to that view, as a per-pixel
       model would have it.
-    - Several, and more than half of the views that see it (``W >= min_weight``): static
+    - Several, and more than half of the views that see it (``W >= SEEN_WEIGHT``): static
       content. It is **shared** (``view_id`` :data:`~clearsplat.scene.SHARED`, -1): no single
       view made it. A per-pixel model predicts static content once from each view that sees
       it, so a view's render without its own Gaussians (the filter's exclusion render) still
@@ -561,7 +555,7 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
       there see it disagreeing), or static content seen through other views' transients. It
       goes to the one of them (the views that see it agreeing) that sees it most, where the
       filter can judge it as a region.
-    - None (no view sees it agreeing with a summed weight of ``min_weight``): its best view;
+    - None (no view sees it agreeing with a summed weight of ``SEEN_WEIGHT``): its best view;
       where no colour agrees anywhere, the view that sees it largest (where the filter can find
       it as a region that disagrees with the image); and if no camera renders it at all, the
       view whose image centre its centre projects nearest to (the one facing it most where
@@ -579,13 +573,6 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
         The input cameras, in the frame of the Gaussians.
     images : sequence of (H, W, 3) array_like
         The input images, RGB in [0, 1], one per camera, of its size.
-    colour_sigma : float
-        Colour difference (RGB in [0, 1]) at which agreement falls to ``exp(-1/2)``.
-    agree_ratio : float
-        Least share ``r`` of a view, relative to the best view's, for that view to count as
-        seeing the Gaussian agreeing, in (0, 1].
-    min_weight : float
-        Least blending weight, summed over one view's pixels, of a Gaussian that view sees.
     settings : RenderSettings, optional
         How to rasterize; by default the scene's, or classic 3DGS for Gaussians.
     num_threads : int, optional
@@ -605,18 +592,11 @@ def associate_fused(gaussians, cameras, images, *, colour_sigma: float = 0.03,
     gaussians.validate()
     cameras = _checked_cameras(cameras)
     images = _checked_images(images, cameras)
-    colour_sigma, min_weight, agree_ratio = (_number(name, value) for name, value in (
-        ("colour_sigma", colour_sigma), ("min_weight", min_weight), ("agree_ratio", agree_ratio)))
-    for name, value in (("colour_sigma", colour_sigma), ("min_weight", min_weight),
-                        ("agree_ratio", agree_ratio)):
-        if not (np.isfinite(value) and value > 0) or (name == "agree_ratio" and value > 1):
-            raise ClearsplatError(f"expected a positive number{' <= 1' * (name == 'agree_ratio')}"
-                                  f", got {value!r}", field=name)
     n = len(gaussians)
-    total, agreeing = _view_sums(gaussians, cameras, images, colour_sigma=colour_sigma,
+    total, agreeing = _view_sums(gaussians, cameras, images, colour_sigma=COLOUR_SIGMA,
                                  settings=settings, num_threads=num_threads)
-    view_id, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=agree_ratio,
-                                               min_weight=min_weight)
+    view_id, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=AGREE_RATIO,
+                                               min_weight=SEEN_WEIGHT)
     if unseen.any():
         view_id[unseen] = _facing_view(gaussians.means[unseen].astype(np.float64), cameras)
     return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
