@@ -5,9 +5,12 @@ Usage::
     python benchmarks/association_quality.py                       # 4, 8, 16 views at 256x448
     python benchmarks/association_quality.py --views 4,8 --resolution 128x224
     python benchmarks/association_quality.py --views 8 --families street --seeds 0,1
+    python benchmarks/association_quality.py --realism all       # a messier stand-in backbone
 
 Per world (family, view count, seed) of the synthetic benchmark, the stand-in per-pixel
-prediction (:func:`clearsplat.synth.reconstruct`) is written out as two kinds of export:
+prediction (:func:`clearsplat.synth.reconstruct`; with ``--realism``, the messier one of
+:func:`clearsplat.synth.realism.realistic_reconstruction` under that scenario, its cameras and
+the images it saw handed on) is written out as two kinds of export:
 
 (a) *Depth Anything 3-style* (:func:`da3_style_export`): its ``gs_ply`` export as the model's
     code writes it: per view a border trim of ``int(8/256*H)`` rows and ``int(8/256*W)``
@@ -56,6 +59,7 @@ from clearsplat.metrics import psnr
 from clearsplat.render import render_batch
 from clearsplat.scene import SHARED, Gaussians, Scene
 from clearsplat.synth import distractor_truth, make_world, reconstruct
+from clearsplat.synth.realism import realistic_reconstruction
 
 #: Acceptance targets.
 TARGET_RIGHT = 0.99          # DA3-style, 8 views: share with the right view and pixel
@@ -64,6 +68,9 @@ TARGET_RECALL = 0.70         # fused: recall of distractor voxels
 TARGET_OF_EXACT = 0.80       # fused: share of the exact-removal gain
 TARGET_OTHER = 0.01          # fused: share of the other voxels removed, every scene
 TARGET_TIME = 1.5            # fused filter time / per-pixel filter time
+
+#: ``--realism`` scenarios that keep one Gaussian per pixel (the exports need it).
+REALISM = ("plain", "soft", "depth", "exposure", "pose", "all")
 
 #: A voxel more than this relative depth from the true surface at its pixel is off the surface.
 OFF_SURFACE = 0.05
@@ -267,7 +274,7 @@ def ordered_case(world, scene, truth, *, seed: int) -> dict:
     """Part (a) on one world."""
     export, tv, tp, src = da3_style_export(scene, seed=seed)
     t0 = time.perf_counter()
-    a = associate_ordered(export.means, world.cameras)
+    a = associate_ordered(export.means, scene.cameras)
     t_assoc = time.perf_counter() - t0
     row = {"vertices": len(export), "right_view": float(np.mean(a.view_id == tv)),
            "right_pixel": float(np.mean(pixel_match(a.view_id, a.pixel_id, tv, tp,
@@ -276,7 +283,7 @@ def ordered_case(world, scene, truth, *, seed: int) -> dict:
     d = truth[src]
     base = _psnr(export, None, world)
     for name, (v, p) in (("recovered", (a.view_id, a.pixel_id)), ("true", (tv, tp))):
-        s = Scene(export, view_id=v, pixel_id=p, cameras=world.cameras, images=world.images)
+        s = Scene(export, view_id=v, pixel_id=p, cameras=scene.cameras, images=scene.images)
         removed, _ = _filter(s)
         row[f"gain_{name}"] = _psnr(export, ~removed, world) - base
         row[f"recall_{name}"] = float(removed[d].mean()) if d.any() else float("nan")
@@ -301,7 +308,7 @@ def fused_case(world, scene, truth, *, seed: int) -> dict:
     dvox = share > 0.5
     dview = majority_view(voxel, scene.view_id, nv, weights=truth.astype(np.float64))
     t0 = time.perf_counter()
-    rec = associate_fused(fused, world.cameras, world.images)
+    rec = associate_fused(fused, scene.cameras, scene.images)
     t_assoc = time.perf_counter() - t0
     row = {"voxels": k, "voxel_size": size, "distractor_voxels": int(dvox.sum()),
            "assoc_s": t_assoc, "ambiguous": float(rec.ambiguous.mean()),
@@ -312,8 +319,8 @@ def fused_case(world, scene, truth, *, seed: int) -> dict:
     row["exact_gain"] = _psnr(fused, ~dvox, world) - base
     majority = majority_view(voxel, scene.view_id, nv)
     for name, views in (("recovered", rec.view_id), ("majority", majority)):
-        s = Scene(fused, view_id=views, pixel_id=None, cameras=world.cameras,
-                  images=world.images)
+        s = Scene(fused, view_id=views, pixel_id=None, cameras=scene.cameras,
+                  images=scene.images)
         removed, secs = _filter(s)
         row[f"{name}_recall"] = float(removed[dvox].mean()) if dvox.any() else float("nan")
         row[f"{name}_other"] = float(removed[~dvox].mean())
@@ -328,10 +335,11 @@ def fused_case(world, scene, truth, *, seed: int) -> dict:
     return row
 
 
-def run(families, views, seeds, height, width, log=print) -> tuple[list, list, list]:
+def run(families, views, seeds, height, width, log=print, *,
+        realism: str = "plain") -> tuple[list, list, list]:
     ordered, video, fused = [], [], []
     for v in views:
-        for seed in seeds:
+        for seed in seeds if realism == "plain" else ():    # the video-like capture: plain
             log(f"video {v} views seed {seed}")
             video.append({"family": "video", "views": v, "seed": seed,
                           **video_case("street", v, height, width, seed)})
@@ -339,8 +347,11 @@ def run(families, views, seeds, height, width, log=print) -> tuple[list, list, l
             for seed in seeds:
                 log(f"{family} {v} views seed {seed}")
                 world = make_world(family, num_views=v, seed=seed, height=height, width=width)
-                scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
-                truth = distractor_truth(scene, world)
+                if realism == "plain":
+                    scene = reconstruct(world.cameras, world.images, world.depths, seed=seed)
+                    truth = distractor_truth(scene, world)
+                else:
+                    scene, truth = realistic_reconstruction(world, realism, seed=seed)
                 key = {"family": family, "views": v, "seed": seed}
                 ordered.append({**key, **ordered_case(world, scene, truth, seed=seed)})
                 fused.append({**key, **fused_case(world, scene, truth, seed=seed)})
@@ -432,13 +443,16 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", default="256x448", help="HxW")
     p.add_argument("--families", default="object,street", help="comma-separated families")
     p.add_argument("--seeds", default="0", help="comma-separated seeds")
+    p.add_argument("--realism", default="plain", choices=REALISM,
+                   help="the stand-in backbone's artifacts (docs/benchmarks.md, realism)")
     args = p.parse_args(argv)
     h, w = (int(x) for x in args.resolution.lower().split("x"))
     views = [int(x) for x in args.views.split(",")]
     seeds = [int(x) for x in args.seeds.split(",")]
     families = [f.strip() for f in args.families.split(",") if f.strip()]
     ordered, video, fused = run(families, views, seeds, h, w,
-                                log=lambda s: print(f"... {s}", flush=True))
+                                log=lambda s: print(f"... {s}", flush=True),
+                                realism=args.realism)
     print(f"\n{format_tables(ordered, video, fused)}\n")
     print("| target | figure | |\n|---|---|---|")
     for label, figure, met in acceptance(ordered, video, fused):

@@ -670,3 +670,15 @@ def test_options_that_are_not_numbers_in_range_are_one_line(call, option, value)
     with pytest.raises(ClearsplatError) as e:
         run()
     assert e.value.field == option
+
+
+def test_the_benchmark_runs_on_the_messier_backbone(capsys):
+    """``association_quality.py --realism``: both exports of a world from the messier stand-in
+    backbone, in both tables, without the (plain) video-like capture."""
+    assert AQ.main(["--views", "3", "--families", "object", "--resolution", "48x64",
+                    "--realism", "all"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("| object | 3 | 0 |") == 2 and "| video |" not in out
+    assert "other voxels removed on every scene" in out
+    with pytest.raises(SystemExit):
+        AQ.main(["--realism", "multi"])          # not one Gaussian per pixel: refused
