@@ -449,18 +449,19 @@ def associate_centred(means, cameras, *, min_seen: float = 0.5) -> Association:
     moved by +0.5 px) but in no order that says which (pruning by opacity, a random subset).
     Projected into its own camera such a centre lands on its pixel's centre, to float32
     round-off; into another camera at a sub-pixel position unrelated to that camera's pixel
-    grid, within :data:`CENTRE_TOLERANCE` of a centre with probability ``(2 tolerance)^2``.
+    grid, within ``tolerance`` (:data:`CENTRE_TOLERANCE`) of a centre with probability
+    ``(2 tolerance)^2``.
 
     Every vertex is projected into every camera, one camera at a time; its *offset* in a
     camera is the distance of its projection from the centre of the pixel it falls in, along
     the axis where it is larger (:func:`_centre_offsets`). Its view is the camera with the
     smallest offset (the first of equals), its pixel the one it falls in there. It is
-    ambiguous where that offset exceeds the tolerance (no camera puts it on a pixel centre:
+    ambiguous where that offset exceeds ``tolerance`` (no camera puts it on a pixel centre:
     the cameras do not fit, or the centres were computed at a lower precision; then its
-    ``pixel_id`` is -1, as its pixel is a guess) or where the
-    second smallest offset is at most ``max(ratio * smallest, tolerance / ratio)``
-    (:data:`CENTRE_RATIO`; two
-    cameras put it there alike: identical cameras, or ones a whole number of pixels apart).
+    ``pixel_id`` is -1, as its pixel is a guess) or where the second smallest offset is at
+    most ``max(ratio * smallest, tolerance / ratio)`` with ``ratio`` :data:`CENTRE_RATIO`
+    (two cameras put it there alike: identical cameras, or ones a whole number of pixels
+    apart).
     A vertex no camera sees goes to the camera whose image centre it projects nearest to (or
     that faces it most), with ``pixel_id = -1``.
 
