@@ -682,3 +682,14 @@ def test_the_benchmark_runs_on_the_messier_backbone(capsys):
     assert "other voxels removed on every scene" in out
     with pytest.raises(SystemExit):
         AQ.main(["--realism", "multi"])          # not one Gaussian per pixel: refused
+
+
+def test_the_fused_association_reports_its_progress():
+    world = make_world("street", num_views=3, height=24, width=32, seed=1)
+    scene = reconstruct(world.cameras, world.images, world.depths, seed=1)
+    calls = []
+    a = associate_fused(scene.gaussians, world.cameras, world.images,
+                        progress=lambda *c: calls.append(c))
+    assert calls == [("associate", v, 3) for v in (1, 2, 3)]
+    b = associate_fused(scene.gaussians, world.cameras, world.images)
+    assert np.array_equal(a.view_id, b.view_id)

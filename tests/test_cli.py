@@ -422,13 +422,21 @@ def test_bad_input(bundle, tmp_path, capsys, case):
     assert not (tmp_path / "out").exists() and leftovers(tmp_path) == []
 
 
-def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, capsys):
+def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, capsys,
+                                                             monkeypatch):
     # A scene from any trainer: no view_id (nor pixel_id). The filter recovers each
     # Gaussian's view from the input images, says so in one line, and indexes the user's file.
+    import clearsplat.cli.filter as command
     edit_ply(bundle, drop("view_id"))
     n = read_columns(bundle / "gaussians.ply")["x"][1].size
+    told = []
+    monkeypatch.setattr(command, "Bar", lambda: lambda *a: told.append(a))    # the progress bar
     code, stdout, err = _filter(bundle, tmp_path / "out", capsys)
     assert code == 0, err
+    # The association's progress, one camera at a time, before the filter's own stages.
+    views = len(json.loads((bundle / "cameras.json").read_text())["frames"])
+    assert told[:views] == [("associate", k, views) for k in range(1, views + 1)], told[:5]
+    assert told[views:] and all(stage != "associate" for stage, _, _ in told[views:])
     line = next(x for x in stdout.splitlines() if x.startswith("associated "))
     assert line.startswith(f"associated {n:,} Gaussians from images: ") and \
         line.endswith("ambiguous (the PLY has no view_id)")

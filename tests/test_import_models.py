@@ -592,15 +592,23 @@ def _write_views(root, cameras, images) -> list:
                                             ("anysplat", "vggt.json"),
                                             ("worldmirror", "camera_params.json"),
                                             ("longlrm", "cameras.json")])
-def test_import_command(files, world, tmp_path, capsys, format, cameras):
+def test_import_command(files, world, tmp_path, capsys, monkeypatch, format, cameras):
+    import clearsplat.cli.import_ as command
     _, scene, _ = world
     out = tmp_path / "bundle"
+    told = []
+    monkeypatch.setattr(command, "Bar", lambda: lambda *a: told.append(a))    # the progress bar
     assert main(["import", format, str(files / f"{format}.ply"), "--cameras",
                  str(files / cameras), "--images", str(files / "images"),
                  "--out", str(out)]) == 0
     printed = capsys.readouterr()
     assert printed.err == ""
     line = printed.out.splitlines()[0]
+    # Where the views come from the images (voxels: AnySplat's, WorldMirror v1's), the
+    # association's progress, one camera at a time.
+    v, fused = scene.num_views, " from images: " in line
+    assert fused == (format in ("anysplat", "worldmirror")), line
+    assert told == ([("associate", k, v) for k in range(1, v + 1)] if fused else []), told
     assert line.startswith(f"{format}: ") and " got a view, " in line and " ambiguous" in line
     bundle = load_scene(out)
     report = json.loads((out / "import.json").read_text())

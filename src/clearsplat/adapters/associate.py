@@ -522,14 +522,15 @@ def associate_centred(means, cameras, *, min_seen: float = 0.5) -> Association:
 # fused Gaussians
 # ------------------------------------------------------------------------------------------------
 def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | None = None,
-                    num_threads: int | None = None) -> Association:
+                    num_threads: int | None = None, progress=None) -> Association:
     """The view of each Gaussian from how it reproduces the input images.
 
     For Gaussians that mix pixels of several views (voxel fusion) or that come with no order
     information at all. Every input camera is rendered, one at a time, with the blending weight
     ``alpha * T`` of every (pixel, Gaussian) pair; each pair's agreement ``exp(-e^2 / (2
-    sigma^2))`` (:data:`COLOUR_SIGMA`) says how well the Gaussian's colour (its SH DC term) matches that view's
-    input image at the pixel (``e`` the RMS difference over the channels). Per Gaussian and view:
+    sigma^2))`` (``sigma`` :data:`COLOUR_SIGMA`) says how well the Gaussian's colour (its SH
+    DC term) matches that view's input image at the pixel (``e`` the RMS difference over the
+    channels). Per Gaussian and view:
     ``W`` the summed weight (how large the view sees it), ``A`` the agreement-weighted sum and
     ``r = A / W`` the share of it that agrees (:func:`_view_sums`).
 
@@ -578,6 +579,9 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
         How to rasterize; by default the scene's, or classic 3DGS for Gaussians.
     num_threads : int, optional
         Render threads (all cores by default).
+    progress : callable(stage, done, total), optional
+        Called with ``("associate", v, V)`` after each of the ``V`` cameras is rendered (the
+        signature of the filter's ``progress=``).
 
     Returns
     -------
@@ -595,7 +599,7 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
     images = _checked_images(images, cameras)
     n = len(gaussians)
     total, agreeing = _view_sums(gaussians, cameras, images, colour_sigma=COLOUR_SIGMA,
-                                 settings=settings, num_threads=num_threads)
+                                 settings=settings, num_threads=num_threads, progress=progress)
     view_id, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=AGREE_RATIO,
                                                min_weight=SEEN_WEIGHT)
     if unseen.any():
@@ -610,7 +614,7 @@ _CHUNK = 1 << 18
 
 
 def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, settings,
-               num_threads) -> tuple[np.ndarray, np.ndarray]:
+               num_threads, progress=None) -> tuple[np.ndarray, np.ndarray]:
     """Per Gaussian and view, rendering one camera at a time: ``W``, the summed blending
     weight, and ``A``, the agreement-weighted sum, each (N, V) float16 (capped at 65504; half
     precision keeps small sums' relative precision): 4 bytes per Gaussian and view."""
@@ -627,6 +631,8 @@ def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, se
                                  _WEIGHT_CAP)
         agreeing[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight * agree,
                                                 minlength=n), _WEIGHT_CAP)
+        if progress is not None:
+            progress("associate", v + 1, len(cameras))
     return total, agreeing
 
 

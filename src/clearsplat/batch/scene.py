@@ -96,7 +96,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
     force : bool, default False
         Replace an ``out`` folder that clearsplat wrote earlier.
     progress : callable, optional
-        ``progress(stage, done, total)``, passed to the filter.
+        ``progress(stage, done, total)``, passed to the filter (and to the association of a
+        PLY without ``view_id``).
     log : callable, optional
         ``log(line)``, told the scene's size once it is loaded (``clearsplat filter`` prints it).
     windows : bool, optional
@@ -149,7 +150,7 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         # A PLY without view_id: each Gaussian's view recovered from the images (one line).
-        loaded = load_scene(scene, associate=True)
+        loaded = load_scene(scene, associate=True, progress=progress)
         if log is not None:
             log(f"{len(loaded):,} Gaussians, {loaded.num_views} views")
             for w in caught:        # told once, here, before the filter runs

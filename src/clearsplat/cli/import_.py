@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from ._common import warn
+from ._common import Bar, warn
 
 
 def add_parser(sub) -> None:
@@ -86,7 +86,7 @@ def run(args) -> int:
         args.ply, args.format, cameras, images, trim=args.trim, spp=args.spp,
         opacity_cut=args.opacity_cut, order=args.order, grid=grid, align=args.align,
         voxelized=args.voxelized, half_pixel=args.half_pixel,
-        allow_misaligned=args.allow_misaligned)
+        allow_misaligned=args.allow_misaligned, progress=Bar())
     print(f"{args.format}: {report.summary()}")
     for note in report.notes:
         print(f"  note: {note}")

@@ -501,7 +501,8 @@ def bundle_camera_file(folder) -> Path:
                 folder / CAMERAS_FILE)
 
 
-def load_scene(path, *, require_images: bool = True, associate: bool = False) -> Scene:
+def load_scene(path, *, require_images: bool = True, associate: bool = False,
+               progress=None) -> Scene:
     """Load a scene bundle.
 
     Parameters
@@ -518,6 +519,8 @@ def load_scene(path, *, require_images: bool = True, associate: bool = False) ->
         is set: then each Gaussian's view is recovered from how it reproduces the input
         images (:func:`clearsplat.adapters.associate.associate_fused`, ``pixel_id`` -1), and a
         ``UserWarning`` says so in one line (how many got a view, how many are ambiguous).
+    progress : callable(stage, done, total), optional
+        Told of the association's progress, one camera at a time (stage ``"associate"``).
 
     Returns
     -------
@@ -568,13 +571,13 @@ def load_scene(path, *, require_images: bool = True, associate: bool = False) ->
                 raise ClearsplatError(e.reason, path=e.path, field=field) from None
     settings = load_render_settings(camera_file)
     if view_id is None:
-        view_id, pixel_id = _associated(gaussians, cameras, images, settings, ply)
+        view_id, pixel_id = _associated(gaussians, cameras, images, settings, ply, progress)
     scene = Scene(gaussians, view_id, pixel_id, cameras, images, settings)
     scene.validate(path=bundle)
     return scene
 
 
-def _associated(gaussians, cameras, images, settings, ply) -> tuple:
+def _associated(gaussians, cameras, images, settings, ply, progress=None) -> tuple:
     """``(view_id, pixel_id)`` of Gaussians without an association, from how they reproduce
     the input images; the one-line summary as a ``UserWarning``."""
     import warnings
@@ -585,7 +588,8 @@ def _associated(gaussians, cameras, images, settings, ply) -> tuple:
                               "association is recovered from the input images", path=ply,
                               field="view_id")
     try:
-        found = associate_fused(gaussians, cameras, images, settings=settings)
+        found = associate_fused(gaussians, cameras, images, settings=settings,
+                                progress=progress)
     except ClearsplatError as e:
         raise ClearsplatError(e.reason, path=ply, field=e.field) from None
     warnings.warn(found.summary() + " (the PLY has no view_id)", stacklevel=3)

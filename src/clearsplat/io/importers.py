@@ -538,7 +538,7 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
                   spp: int | None = None, opacity_cut: float | None = None,
                   order: str | None = None, grid: tuple | None = None, align: str = "auto",
                   voxelized: bool | None = None, half_pixel: bool | None = None,
-                  allow_misaligned: bool = False):
+                  allow_misaligned: bool = False, progress=None):
     """Read a model's PLY export as a scene with ``view_id`` and ``pixel_id``.
 
     Parameters
@@ -577,6 +577,9 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         :data:`MODEL_FORMATS` and voxels, when the cameras see fewer than
         :data:`MIN_SEEN_SHARE` of them; by default such an import, whose association is
         wrong, is refused.
+    progress : callable(stage, done, total), optional
+        Told of the association from the images, one camera at a time (stage
+        ``"associate"``; :func:`clearsplat.adapters.associate.associate_fused`).
 
     Returns
     -------
@@ -609,7 +612,8 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
         cams = _checked_cameras(cameras)
         if images is not None:
             images = _checked_images(images, len(cams), cams[0].height, cams[0].width)
-        return _import_model(path, format, cams, images, allow_misaligned=allow_misaligned)
+        return _import_model(path, format, cams, images, allow_misaligned=allow_misaligned,
+                             progress=progress)
     fmt = _format_with_options(format, dict(
         trim=trim, spp=spp, opacity_cut=opacity_cut, order=order, voxelized=voxelized,
         half_pixel=half_pixel), align)
@@ -624,7 +628,7 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     if fmt.voxelized:
         return _import_fused(path, format, g, cams, images, allow_misaligned=allow_misaligned,
                              notes=["voxel-fused export: each voxel's view recovered from the "
-                                    "images"])
+                                    "images"], progress=progress)
     view_id, pixel_id, (gh, gw) = _layout(path, format, fmt, g, cams, grid)
 
     # the frame: s A x + b, with s and b fitted where the export did not record them
@@ -748,7 +752,7 @@ def _pixel_stats(means, cams, view_id, pixel_id) -> dict:
 # ------------------------------------------------------------------------------------------------
 # exports whose vertex order no longer gives the association
 # ------------------------------------------------------------------------------------------------
-def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
+def _import_model(path, format: str, cams, images, *, allow_misaligned: bool, progress=None):
     """A :data:`MODEL_FORMATS` export: its frame, the recovered association, the scene."""
     spec = MODEL_FORMATS[format]
     if spec.association == "refused":
@@ -771,7 +775,7 @@ def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
     moved = _similar(path, g, frame)
     if spec.association == "voxels-or-ordered" and _voxel_sorted(g.means):
         return _import_fused(path, format, moved, cams, images,
-                             allow_misaligned=allow_misaligned, frame=frame,
+                             allow_misaligned=allow_misaligned, frame=frame, progress=progress,
                              notes=["vertices in voxel order (voxel-merged): each voxel's view "
                                     "recovered from the images"])
     if spec.association == "ranked-or-ordered" and _opacity_ranked(g.opacities):
@@ -792,7 +796,8 @@ def _import_model(path, format: str, cams, images, *, allow_misaligned: bool):
     return _import_fused(path, format, moved, cams, images, allow_misaligned=allow_misaligned,
                          notes=[f"vertices {order}, centres not on pixel centres (computed at a "
                                 "lower precision, or other cameras): each Gaussian's view "
-                                "recovered from the images"], frame=frame)
+                                "recovered from the images"], frame=frame,
+                         progress=progress)
 
 
 def _bands(k: int) -> str:
@@ -1052,7 +1057,8 @@ def _centred(means, cams):
     return assoc
 
 
-def _import_fused(path, format, g, cams, images, *, allow_misaligned, notes, frame=None):
+def _import_fused(path, format, g, cams, images, *, allow_misaligned, notes, frame=None,
+                  progress=None):
     """Gaussians that mix views or carry no order: each one's view from the images."""
     from ..adapters.associate import associate_fused
     if images is None:
@@ -1060,7 +1066,7 @@ def _import_fused(path, format, g, cams, images, *, allow_misaligned, notes, fra
                               "is recovered from how it reproduces them)", path=path,
                               field="images")
     settings = _render_settings(format)
-    assoc = associate_fused(g, cams, images, settings=settings)
+    assoc = associate_fused(g, cams, images, settings=settings, progress=progress)
     seen = 1.0 - float(assoc.ambiguous.mean()) if len(assoc) else 1.0
     if seen < MIN_SEEN_SHARE and not allow_misaligned:
         raise ClearsplatError(
