@@ -191,6 +191,14 @@ def _number(name: str, value) -> float:
         raise ClearsplatError(f"expected a number, got {value!r}", field=name) from None
 
 
+def _checked_share(min_seen) -> float:
+    """``min_seen`` as a float in [0, 1], else one line naming it."""
+    value = _number("min_seen", min_seen)
+    if not 0 <= value <= 1:
+        raise ClearsplatError(f"expected a share in [0, 1], got {value!r}", field="min_seen")
+    return value
+
+
 def _checked_cameras(cameras) -> list:
     cameras = list(cameras)
     if not cameras:
@@ -383,12 +391,9 @@ def associate_ordered(means, cameras, *, views=None, max_offset: float = MAX_OFF
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
     views = _checked_views(views, len(cameras))
-    max_offset, min_seen = (_number(name, value) for name, value in (
-        ("max_offset", max_offset), ("min_seen", min_seen)))
+    max_offset, min_seen = _number("max_offset", max_offset), _checked_share(min_seen)
     if not (np.isfinite(max_offset) and max_offset > 0):
         raise ClearsplatError(f"expected a number > 0, got {max_offset!r}", field="max_offset")
-    if not 0 <= min_seen <= 1:
-        raise ClearsplatError(f"expected a share in [0, 1], got {min_seen!r}", field="min_seen")
     n = len(means)
     if n == 0:
         e = np.empty(0, dtype=np.int64)
@@ -490,9 +495,7 @@ def associate_centred(means, cameras, *, min_seen: float = 0.5) -> Association:
     """
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
-    min_seen = _number("min_seen", min_seen)
-    if not 0 <= min_seen <= 1:
-        raise ClearsplatError(f"expected a share in [0, 1], got {min_seen!r}", field="min_seen")
+    min_seen = _checked_share(min_seen)
     tolerance, ratio = CENTRE_TOLERANCE, CENTRE_RATIO
     n = len(means)
     best, second = np.full(n, np.inf), np.full(n, np.inf)
@@ -598,10 +601,9 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
     cameras = _checked_cameras(cameras)
     images = _checked_images(images, cameras)
     n = len(gaussians)
-    total, agreeing = _view_sums(gaussians, cameras, images, colour_sigma=COLOUR_SIGMA,
-                                 settings=settings, num_threads=num_threads, progress=progress)
-    view_id, ambiguous, unseen = _choose_views(total, agreeing, agree_ratio=AGREE_RATIO,
-                                               min_weight=SEEN_WEIGHT)
+    total, agreeing = _view_sums(gaussians, cameras, images, settings=settings,
+                                 num_threads=num_threads, progress=progress)
+    view_id, ambiguous, unseen = _choose_views(total, agreeing)
     if unseen.any():
         view_id[unseen] = _facing_view(gaussians.means[unseen].astype(np.float64), cameras)
     return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
@@ -613,8 +615,8 @@ _WEIGHT_CAP = 65504.0
 _CHUNK = 1 << 18
 
 
-def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, settings,
-               num_threads, progress=None) -> tuple[np.ndarray, np.ndarray]:
+def _view_sums(gaussians: Gaussians, cameras, images, *, settings, num_threads,
+               progress=None) -> tuple[np.ndarray, np.ndarray]:
     """Per Gaussian and view, rendering one camera at a time: ``W``, the summed blending
     weight, and ``A``, the agreement-weighted sum, each (N, V) float16 (capped at 65504; half
     precision keeps small sums' relative precision): 4 bytes per Gaussian and view."""
@@ -626,7 +628,7 @@ def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, se
         view = prepare(gaussians, cam, num_threads=num_threads, settings=settings)
         c = view.contributions(np.ones((cam.height, cam.width), dtype=bool))
         diff = colour[c.gaussian] - image.reshape(-1, 3)[c.pixel]
-        agree = np.exp(np.einsum("ij,ij->i", diff, diff) / (-6.0 * colour_sigma ** 2))
+        agree = np.exp(np.einsum("ij,ij->i", diff, diff) / (-6.0 * COLOUR_SIGMA ** 2))
         total[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight, minlength=n),
                                  _WEIGHT_CAP)
         agreeing[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight * agree,
@@ -636,8 +638,8 @@ def _view_sums(gaussians: Gaussians, cameras, images, *, colour_sigma: float, se
     return total, agreeing
 
 
-def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float,
-                  min_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _choose_views(total: np.ndarray, agreeing: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The view of each Gaussian from ``_view_sums``' ``W`` and ``A`` (see
     :func:`associate_fused`).
 
@@ -662,8 +664,8 @@ def _choose_views(total: np.ndarray, agreeing: np.ndarray, *, agree_ratio: float
         r = a / np.maximum(w, 1e-30)
         best = np.argmax(a * r, axis=1)
         r_best = r[np.arange(len(w)), best]
-        seeing = w >= min_weight
-        ok = seeing & (r >= agree_ratio * r_best[:, None]) & (r_best[:, None] > 0)
+        seeing = w >= SEEN_WEIGHT
+        ok = seeing & (r >= AGREE_RATIO * r_best[:, None]) & (r_best[:, None] > 0)
         c = ok.sum(axis=1)
         ambiguous[rows] = c == 0
         v = np.where(r_best > 0, best, np.argmax(w, axis=1))

@@ -26,6 +26,8 @@ class ViewIndex:
         # Indices and pixel ids are held as int32 where they fit (half the memory of int64 at
         # millions of Gaussians); what the methods return is int64.
         self.members = view_members(scene, narrow=True)
+        #: The Gaussians shared by several views (view id -1): in no view's members.
+        self.shared = _narrow(np.flatnonzero(scene.view_id < 0), len(scene))
         self.pixels = [_narrow(scene.pixel_id[m], cam.width * cam.height)
                        for m, cam in zip(self.members, scene.cameras)]
         # Pixel -> Gaussians of each view as CSR (pixel-aligned Gaussians only): a region's

@@ -239,7 +239,9 @@ def held_mask(scene, hoods, j: int, index=None) -> np.ndarray | None:
         return None
     if index is None:
         return np.append(hoods[j], True)[scene.view_id]     # SHARED (-1): the last entry
-    return index.views_mask(hoods[j], len(scene)) | (scene.view_id < 0)
+    held = index.views_mask(hoods[j], len(scene))
+    held[index.shared] = True
+    return held
 
 
 def backend_for(config: FilterConfig) -> FilterBackend:
