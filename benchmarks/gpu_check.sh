@@ -1,9 +1,10 @@
 #!/bin/bash
 # The GPU checks of docs/benchmarks.md ("On a GPU") in one go, on a machine with CUDA and
 # PyTorch: build a wheel of this checkout, then the CUDA tests, the decisions against the CPU
-# filter, the speed table, the decisions on a dense street with the static verification base,
-# the profile, the fast preset's rows and the 32-view street row, each step capped in time and
-# in this order, so that a short time on a GPU machine measures what matters most.
+# filter, the speed table, the native filter's speed on the same host cores, the decisions on a
+# dense street with the static verification base, the profile, the fast preset's rows and the
+# 32-view street row, each step capped in time and in this order, so that a short time on a GPU
+# machine measures what matters most.
 #
 #     bash benchmarks/gpu_check.sh [OUTDIR] [SECONDS]
 #
@@ -40,6 +41,8 @@ step tests 90 6 python3 -m pytest -q -p no:cacheprovider tests/test_torch_backen
 step decisions 80 12 python3 benchmarks/gpu_decisions.py --views 4,8 --set backend=torch
 step speed_object 170 30 python3 benchmarks/filter_speed.py --device cuda --set backend=torch \
     --views 4,8,16 --repeats 2 --full-repeats 1
+step speed_native 100 30 python3 benchmarks/filter_speed.py --views 4,8,16 --repeats 2 \
+    --full-repeats 1
 step decisions_dense 90 12 python3 benchmarks/gpu_decisions.py --views 24 --family street \
     --resolution 128x224 --set backend=torch --set verify_base=static
 step profile 60 40 python3 benchmarks/gpu_profile.py --views 4 --rows 12

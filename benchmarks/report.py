@@ -51,7 +51,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HERE = os.path.join(ROOT, "benchmarks")
 SECTIONS = ("scenarios", "quality", "ablation", "speed", "dense", "gpu", "datasets")
 MEASURED = ("scenarios", "quality", "ablation", "speed")
-MAX_LINES = 600
+MAX_LINES = 660   # the generated sections and the measurements written by hand between them
 SCENARIOS = "plain,soft,depth,multi,exposure,pose,coarse,all"
 
 
@@ -547,33 +547,32 @@ other views' passers-by; the `video` preset also leaves the frame on each side o
 """,
     "gpu": """## On a GPU
 
-Measured on 2026-11-27 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
-driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.4.7 built
-there as a wheel; object scenes at 256x448 (street at 32 views), that version's default config
-(`verify_base="exclude-own"`) and `fast` preset. That machine is not at hand, so this page's
-command does not regenerate these figures.
+Measured on 2026-11-29 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
+driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.12.0 built
+there as a wheel; object scenes at 256x448, today's default config and `fast` preset. That
+machine is not at hand, so this page's command does not regenerate these figures.
 
 | views | torch backend on the H200, total s | its verification s | GPU peak GB | native CPU filter, the same 16 cores: total s / verification s | same decisions |
 |---|---|---|---|---|---|
-| 4 | 1.45 | 0.49 | 0.97 | 1.02 / 0.35 | yes |
-| 8 | 8.97 | 2.27 | 1.76 | 4.69 / 1.61 | no: 34 Gaussians differ (17,615 removed against 17,581) |
-| 16 | 28.36 | 7.09 | 4.37 | 12.41 / 3.71 | no |
-| 32 (street) | 49.13 | 15.91 | 5.65 | 21.72 / 7.92 | yes |
-| 8, `fast` | 3.97 | 1.31 | 1.48 | 2.37 / 0.90 | yes |
-| 16, `fast` | 8.70 | 1.88 | 2.37 | 4.24 / 1.24 | yes |
+| 4 | 2.04 | 1.05 | 0.97 | 0.84 / 0.28 | yes |
+| 8 | 10.45 | 4.18 | 1.76 | 3.61 / 1.19 | no: 36 Gaussians differ (17,282 removed against 17,248) |
+| 16 | 32.05 | 10.00 | 4.37 | 10.90 / 2.94 | no |
+| 8, `fast` | 5.54 | 2.79 | 1.48 | not measured | yes |
+| 16, `fast` | 11.07 | 4.49 | 2.37 | not measured | yes |
 
 Commands: `python benchmarks/filter_speed.py --device cuda --set backend=torch --views 4,8,16
---repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one), the same with
-`--views 32 --family street --repeats 1` and `--preset fast --views 8,16 --repeats 1`; native:
-without `--device cuda --set backend=torch`. `bash benchmarks/gpu_check.sh OUTDIR` runs all
-of it (406 s there). The paper reports 3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16
-views) on an RTX 4090. The native filter on 16 cores is only about 1.5 times as fast as on the
-2-core VM: its refinement and the verification's serial NumPy work do not spread over cores.
+--repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one) and the same with
+`--preset fast --views 8,16 --repeats 1`; native: `python benchmarks/filter_speed.py --views
+4,8,16 --repeats 2 --full-repeats 1`. `bash benchmarks/gpu_check.sh OUTDIR 500` runs all of it
+in that order and then the 32-view street, which its last 68 s did not finish. The paper reports
+3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter on
+those 16 cores is no faster than on the 2-core VM ("Speed" above: 0.79 / 3.63 / 10.27 s): its
+refinement and the verification's serial NumPy work do not spread over cores.
 
 **Why the GPU is slower than the CPU.** `python benchmarks/gpu_profile.py --views 4` (same
-machine): of 2.26 s under the profiler the GPU is busy 0.39 s (17 %), with 119,903 torch ops,
-49,865 kernel launches and 3,157 stream synchronisations; of its 0.39 s, compositing's scans
-(`cumsum`) take 39 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of a
+machine): of 2.70 s under the profiler the GPU is busy 0.47 s (17 %), with 199,167 torch ops,
+80,291 kernel launches and 5,389 stream synchronisations; of its 0.47 s, compositing's scans
+(`cumsum`) take 34 % and gathers 27 %: the backend expands every (Gaussian, pixel) fragment of a
 tile, where a rasterizer kernel stops each pixel at its transmittance limit. It is bound by
 launches, host round trips and fragment expansion: fused compositing kernels are needed, not a
 faster card.
@@ -581,10 +580,11 @@ faster card.
 **Decisions.** The backend's renders agree with the native ones to float32 rounding, and at 8
 views that rounding flips a few decisions (on CPU tensors too): about a third of each view's
 patches differ by less than 1e-5 of their depth in the support condition (`python
-benchmarks/support_rounding.py`). A dense street got the native decisions exactly (`python
-benchmarks/gpu_decisions.py --views 24 --family street --resolution 128x224 --set
-backend=torch --set verify_base=static`: 24,859 removed, 18.3 s against 4.9 s natively). The
-CUDA tests (`python -m pytest tests/test_torch_backend.py -k cuda`) passed there: 10 passed.
+benchmarks/support_rounding.py`). At 4 views (`python benchmarks/gpu_decisions.py --views 4,8
+--set backend=torch`) and on a dense street (`python benchmarks/gpu_decisions.py --views 24
+--family street --resolution 128x224 --set backend=torch --set verify_base=static`: 22,413
+removed, 18.2 s against 4.5 s natively) the GPU made the native decisions exactly. The CUDA
+tests (`python -m pytest tests/test_torch_backend.py -k cuda`) passed there: 10 passed.
 
 **gsplat** (`--set device=cuda`, the default on CUDA) was not measured (no gsplat on that
 machine); `tests/test_gsplat.py` checks its path with a fake gsplat.
