@@ -6,14 +6,20 @@ Usage::
     python benchmarks/video_windows.py --frames 100 --modes whole,windows
     python benchmarks/video_windows.py --frames 1000 --modes windows,ray --no-quality
     python benchmarks/video_windows.py --frames 100 --modes windows --reach
+    python benchmarks/video_windows.py --frames 100,300 --modes whole,windows --fused
 
 Per frame count, the video-like street (``make_world("street", transients="video")``: each
 passer-by stays for 2-5 consecutive frames, seed 0) is reconstructed by the stand-in backbone
 and written as a bundle into ``--cache`` (kept for the next run, with the ground truth and the
 test views' reference PSNRs). The street holds about 300 frames; a longer capture is made of
 streets of 250 frames side by side (seeds 0, 1, ...), one after another in the input order,
-and gets no quality columns (time, memory and the same removals only). Each mode then filters the bundle in a fresh process, exactly as
-``clearsplat filter`` does, with the default config:
+and gets no quality columns (time, memory and the same removals only). With ``--fused`` the
+prediction is written as a voxel-fused export instead (AnySplat's fusion, about 5 pixels per
+voxel: ``association_quality.voxel_fused_export``) and each voxel's view recovered from the
+images (:func:`clearsplat.adapters.associate.associate_fused`; the static voxels shared by
+several views, view id -1); a voxel is a distractor where most of its pixels are. Each mode
+then filters the bundle in a fresh process, exactly as ``clearsplat filter`` does, with the
+default config:
 
 - ``whole``: the whole capture in one filter run (:func:`clearsplat.batch.filter_scene` with
   ``windows=False``);
@@ -22,9 +28,10 @@ and gets no quality columns (time, memory and the same removals only). Each mode
 - ``ray``: the same windows as tasks of a local Ray instance with ``--workers`` CPUs.
 
 Reported per run: wall seconds, the process's peak resident memory (``VmHWM``; in the ray mode
-the driver's, its workers being Ray's processes), and against the ground truth recall of the distractor Gaussians,
-the PSNR gain on the held-out test views as a share of the clean input's gain (the clean
-twin's PSNR minus the unfiltered one), and the share of the other Gaussians removed. Runs of
+the driver's, its workers being Ray's processes), and against the ground truth recall of the
+distractor Gaussians, the PSNR gain on the held-out test views as a share of the clean input's
+gain (the clean twin's PSNR minus the unfiltered one), and the share of the other Gaussians
+removed. Runs of
 the same frame count also report whether their removals equal the first run's.
 """
 
@@ -127,6 +134,41 @@ def make_bundle(folder: Path, frames: int, height: int, width: int, seed: int = 
     tmp.rename(folder)
 
 
+def make_fused_bundle(folder: Path, source: Path, seed: int = 0) -> None:
+    """The per-pixel bundle ``source`` as a voxel-fused export with its views recovered from
+    the images, in ``folder``, with the voxels' ``truth.npy`` and ``quality.npz`` (the test
+    views, the fused scene's unfiltered PSNR and the clean twin's)."""
+    import importlib.util
+    from clearsplat import Camera, Scene
+    from clearsplat.adapters.associate import associate_fused
+    from clearsplat.bench import _quality
+    from clearsplat.io import load_scene, save_scene
+
+    spec = importlib.util.spec_from_file_location(
+        "association_quality", Path(__file__).with_name("association_quality.py"))
+    aq = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(aq)
+    scene = load_scene(source)
+    fused, voxel, _ = aq.voxel_fused_export(scene, seed=seed)
+    truth = np.load(source / "truth.npy").astype(np.float64)
+    k = len(fused)
+    share = np.bincount(voxel, truth, minlength=k) / np.bincount(voxel, minlength=k)
+    cameras, images = scene.cameras, scene.images
+    del scene, voxel
+    a = associate_fused(fused, cameras, images)
+    out = Scene(fused, view_id=a.view_id, pixel_id=a.pixel_id, cameras=cameras, images=images)
+    q = dict(np.load(source / "quality.npz"))
+    h, w = q["images"].shape[1:3]
+    tests = [Camera(K=kk, camera_to_world=c, width=w, height=h) for kk, c in zip(q["K"], q["c2w"])]
+    q["base"] = _quality(out, None, tests, list(q["images"]))["psnr"]
+    tmp = folder.with_name(folder.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    save_scene(out, tmp)
+    np.save(tmp / "truth.npy", share > 0.5)
+    np.savez(tmp / "quality.npz", **q)
+    tmp.rename(folder)
+
+
 def measure(mode: str, bundle: Path, out: Path, workers: int) -> dict:
     """Run one mode in a fresh process; its wall time and peak memory (with its children)."""
     shutil.rmtree(out, ignore_errors=True)
@@ -192,6 +234,8 @@ def main(argv=None) -> int:
     p.add_argument("--cache", default="video-cache", help="bundles are kept here")
     p.add_argument("--no-quality", action="store_true", help="time and memory only")
     p.add_argument("--json", help="also write the rows here")
+    p.add_argument("--fused", action="store_true",
+                   help="a voxel-fused export of each video, its views recovered from the images")
     p.add_argument("--reach", action="store_true",
                    help="also print how far each view's neighbourhood reaches (in frames)")
     args = p.parse_args(argv)
@@ -207,12 +251,18 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             make_bundle(bundle, frames, height, width)
             print(f"(made {bundle} in {time.perf_counter() - t:.0f} s)", flush=True)
+        if args.fused:
+            source, bundle = bundle, Path(f"{bundle}-fused")
+            if not bundle.is_dir():
+                t = time.perf_counter()
+                make_fused_bundle(bundle, source)
+                print(f"(made {bundle} in {time.perf_counter() - t:.0f} s)", flush=True)
         n = int(np.load(bundle / "truth.npy", mmap_mode="r").shape[0])
         if args.reach:
             print(f"{frames} frames: {reach(bundle)}", flush=True)
         first = None
         for mode in args.modes.split(","):
-            out = cache / f"out-{frames}-{height}x{width}-{mode}"
+            out = cache / f"out-{frames}-{height}x{width}{'-fused' * args.fused}-{mode}"
             row = measure(mode, bundle, out, args.workers)
             row.update(frames=frames, gaussians=n)
             removed = np.load(out / "removed.npy")

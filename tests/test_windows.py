@@ -259,29 +259,127 @@ def test_bad_view_ids_get_one_line(video, tmp_path):
     assert not (tmp_path / ".out.clearsplat-windows").exists()
 
 
-def test_shared_gaussians_are_filtered_whole(video, tmp_path, monkeypatch, capsys):
-    # Gaussians shared by several views (view id -1, a fused export) belong to no window: the
-    # windows refuse them in one line, and the command filters such a capture whole.
+def _random_rotations(rng, n):
+    q = rng.standard_normal((n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def test_seen_by_holds_every_gaussian_the_rasterizer_draws():
+    """Reference: each Gaussian rendered alone; whatever covers a pixel of a camera is seen."""
+    from clearsplat import Camera
+    from clearsplat.batch.windows import seen_by
+    from clearsplat.cameras import look_at
+    from clearsplat.render import render
+    from clearsplat.scene import Gaussians
+    rng = np.random.default_rng(7)
+    cams = [Camera(K=[[40.0, 0, 30.0], [0, 40.0, 20.0], [0, 0, 1]],
+                   camera_to_world=look_at(eye, (0.0, 0.0, 0.0)), width=60, height=40)
+            for eye in ((0.0, -4.0, 0.5), (3.0, -3.0, 1.0))]
+    n = 600
+    means = rng.uniform(-6, 6, (n, 3))
+    scales = np.exp(rng.uniform(np.log(0.005), np.log(0.8), (n, 3)))
+    scales[: n // 2] = scales[: n // 2, :1]       # the first half round, the rest elongated
+    g = Gaussians(means=means, scales=scales, quats=_random_rotations(rng, n),
+                  opacities=rng.uniform(0.05, 0.99, n), sh=rng.uniform(0, 1, (n, 1, 3)))
+    for k in range(len(cams)):
+        seen = seen_by(means, scales, cams[k:k + 1])
+        drawn = np.array([render(g, cams[k], keep=np.arange(n) == i).alpha.max() > 0
+                          for i in range(n)])
+        assert drawn.sum() > 100
+        assert not (drawn & ~seen).any()
+        # Not everything: of the round ones, at most half again as many seen as drawn (the
+        # bound takes an elongated one's largest scale in every direction).
+        round_ = np.arange(n) < n // 2
+        assert seen[round_].sum() <= 1.5 * drawn[round_].sum()
+    assert np.array_equal(seen_by(means, scales, cams),
+                          seen_by(means, scales, cams[:1]) | seen_by(means, scales, cams[1:]))
+    # Closed form: a point one pixel inside the image's left border is seen; 5 px outside
+    # it is not (its reach is 3.5 sqrt(0.3) + 1 = 2.9 px); behind the camera is not.
+    cam = Camera(K=[[50.0, 0, 30.0], [0, 50.0, 20.0], [0, 0, 1]], camera_to_world=np.eye(4),
+                 width=60, height=40)
+    tiny = np.full((4, 3), 1e-6)
+    pts = np.array([[(1 - 30) / 50 * 2, 0, 2], [(-5 - 30) / 50 * 2, 0, 2], [0, 0, -2],
+                    [(-2.5 - 30) / 50 * 2, 0, 2]])
+    assert seen_by(pts, tiny, [cam]).tolist() == [True, False, False, True]
+    assert seen_by(np.zeros((0, 3)), np.zeros((0, 3)), [cam]).shape == (0,)
+
+
+@pytest.fixture(scope="module")
+def fused(video, tmp_path_factory):
+    """The video with a third of its Gaussians shared by every view (view id -1), as a fused
+    export's static content is."""
     import shutil
+    root = tmp_path_factory.mktemp("fused") / "fused"
+    shutil.copytree(video, root)
+    from clearsplat.scene import Gaussians
+    g, view_id, pixel_id = read_ply(root / "gaussians.ply")
+    shared = np.random.default_rng(5).random(len(g)) < 1 / 3
+    view_id[shared], pixel_id[shared] = -1, -1
+    # And a small shared Gaussian 0.1 in front of each camera: the cameras move forward, so
+    # only those up to its own see it, and the last windows do not hold the first ones'.
+    cams = load_scene(video).cameras
+    ahead = np.stack([c.camera_to_world[:3, 3] + 0.1 * c.camera_to_world[:3, 2] for c in cams])
+    k = len(cams)
+    g = Gaussians(means=np.concatenate([g.means, ahead]),
+                  scales=np.concatenate([g.scales, np.full((k, 3), 1e-3, g.scales.dtype)]),
+                  quats=np.concatenate([g.quats, np.tile(g.quats[:1], (k, 1))]),
+                  opacities=np.concatenate([g.opacities, np.full(k, 0.5, g.opacities.dtype)]),
+                  sh=np.concatenate([g.sh, g.sh[:k]]))
+    write_ply(root / "gaussians.ply", g, view_id=np.concatenate([view_id, np.full(k, -1)]),
+              pixel_id=np.concatenate([pixel_id, np.full(k, -1)]))
+    return root
+
+
+def test_shared_gaussians_go_to_the_windows_that_see_them(fused, tmp_path):
+    """Reference: each window's scene cut from the whole in memory, its views' Gaussians and
+    the shared ones its cameras see (seen_by), filtered on its own."""
+    from clearsplat.batch.windows import seen_by
+    scene = load_scene(fused)
+    config = resolve_auto(FilterConfig(), scene.num_views)
+    shared = scene.view_id == -1
+    expected = np.zeros(len(scene), bool)
+    held_shared = []
+    for w in plan_windows(scene.num_views, **OPTIONS):
+        cams = scene.cameras[w.held.start:w.held.stop]
+        mine = shared & seen_by(scene.gaussians.means, scene.gaussians.scales, cams)
+        held_shared.append(int(mine.sum()))
+        rows = np.flatnonzero(np.isin(scene.view_id, list(w.held)) | mine)
+        part = dataclasses.replace(
+            scene.subset(rows), view_id=np.where(shared[rows], -1, scene.view_id[rows]
+                                                 - w.held.start).astype(np.int32),
+            cameras=cams, images=scene.images[w.held.start:w.held.stop])
+        result = filter_distractors(part, config=config)
+        for c in result.candidates:
+            if c.view + w.held.start in w.judged and c.accepted:
+                expected[rows[c.expanded]] = True
+    # Every window holds shared Gaussians; the last does not hold those in front of the first
+    # cameras.
+    assert min(held_shared) > 0 and held_shared[-1] <= shared.sum() - 8
+    filter_windows(fused, tmp_path / "out", **OPTIONS)
+    removed = np.load(tmp_path / "out" / "removed.npy")
+    assert expected.any()
+    assert np.array_equal(removed, expected)
+    assert not (tmp_path / ".out.clearsplat-windows").exists()
+    kept = read_ply(tmp_path / "out" / "gaussians.ply")[1]
+    assert (kept == -1).sum() == (shared & ~removed).sum()
+
+
+def test_a_fused_capture_in_one_window_is_the_whole_filter(fused, tmp_path, monkeypatch,
+                                                            capsys):
     import clearsplat.batch.windows as w
-    shared = tmp_path / "shared"
-    shutil.copytree(video, shared)
-    g, view_id, pixel_id = read_ply(shared / "gaussians.ply")
-    view_id[:40], pixel_id[:40] = -1, -1
-    write_ply(shared / "gaussians.ply", g, view_id=view_id, pixel_id=pixel_id)
-    with pytest.raises(ClearsplatError, match="40 Gaussians are shared by several views") as e:
-        filter_windows(shared, tmp_path / "out", **OPTIONS)
-    assert e.value.field == "view_id" and not (tmp_path / "out").exists()
-    with pytest.raises(w.SharedViewsError):             # windows asked for: refused
-        filter_scene(shared, tmp_path / "out", windows=True)
-    assert not (tmp_path / "out").exists()
+    filter_windows(fused, tmp_path / "one", window=100)
+    filter_scene(fused, tmp_path / "whole", windows=False)
+    for name in ("gaussians.ply", "removed.npy", "removed.ply", "candidates.npz"):
+        assert (tmp_path / "one" / name).read_bytes() == \
+            (tmp_path / "whole" / name).read_bytes(), name
+    # The command filters a long fused capture in windows.
     monkeypatch.setattr(w, "WINDOWS_FROM", 10)
-    assert main(["filter", str(shared), "--out", str(tmp_path / "whole")]) == 0
+    monkeypatch.setattr(w, "WINDOW_VIEWS", 7)
+    assert main(["filter", str(fused), "--out", str(tmp_path / "windowed")]) == 0
     out = capsys.readouterr().out
-    assert "40 Gaussians are shared by several views (a fused export): filtered whole" in out
-    assert "window of about" not in out and "windows of about" not in out
-    assert "windows" not in json.loads((tmp_path / "whole" / "summary.json").read_text())
-    assert read_ply(tmp_path / "whole" / "gaussians.ply")[1].min() == -1
+    assert "in 2 windows of about 7 views" in out
+    summary = json.loads((tmp_path / "windowed" / "summary.json").read_text())
+    assert len(summary["windows"]) > 1
 
 
 def test_the_command_uses_windows_from_the_threshold(video, tmp_path, monkeypatch, capsys):
@@ -355,7 +453,8 @@ def test_an_order_that_does_not_follow_the_path_is_told(video, tmp_path):
 @pytest.mark.skipif(not HAVE_RAY, reason="ray is not installed (pip install 'clearsplat[batch]')")
 def test_a_window_larger_than_every_ray_node_gets_one_line(video, tmp_path, monkeypatch):
     import clearsplat.batch.windows as w
-    monkeypatch.setattr(w, "_window_memory", lambda windows, *a: [10 ** 15] * len(windows))
+    monkeypatch.setattr(w, "_window_memory",
+                        lambda windows, *a, **k: [10 ** 15] * len(windows))
     with pytest.raises(ClearsplatError, match=r"a window needs about 1000000.0 GB, the largest "
                                               r"Ray node has") as e:
         filter_windows(video, tmp_path / "out", workers=1, **OPTIONS)
@@ -363,20 +462,27 @@ def test_a_window_larger_than_every_ray_node_gets_one_line(video, tmp_path, monk
     assert not (tmp_path / "out").exists()
 
 
-def test_each_window_asks_for_at_least_what_it_holds(video):
+@pytest.mark.parametrize("bundle", ["video", "fused"])
+def test_each_window_asks_for_at_least_what_it_holds(bundle, request):
     """The memory a window asks Ray for grows with its rows and covers what it holds: its
-    rows as read from the file, and its scene decoded (Gaussians, association, images)."""
-    from clearsplat.batch.windows import _window_memory
-    rows = PlyRows(video / "gaussians.ply")
-    whole = load_scene(video)
+    rows as read from the file, and its scene decoded (Gaussians, association, images); of a
+    fused capture, the shared Gaussians its cameras see too."""
+    from clearsplat.batch.windows import _window_memory, seen_by
+    path = request.getfixturevalue(bundle)
+    rows = PlyRows(path / "gaussians.ply")
+    whole = load_scene(path)
     views = rows.column("view_id")
     plan = plan_windows(whole.num_views, **OPTIONS)
-    need = _window_memory(plan, views, whole.cameras, rows.dtype.itemsize, FilterConfig())
-    held = [np.isin(views, list(w.held)) for w in plan]
+    g = whole.gaussians
+    held = [np.isin(views, list(w.held)) | ((views == -1) & seen_by(
+        g.means, g.scales, whole.cameras[w.held.start:w.held.stop])) for w in plan]
+    shared = [int((h & (views == -1)).sum()) for h in held]
+    need = _window_memory(plan, views, whole.cameras, rows.dtype.itemsize, FilterConfig(),
+                          shared=shared)
     for m, w, mine in zip(need, plan, held):
         part = whole.subset(mine)
-        g = part.gaussians
-        decoded = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh,
+        p = part.gaussians
+        decoded = sum(a.nbytes for a in (p.means, p.scales, p.quats, p.opacities, p.sh,
                                           part.view_id, part.pixel_id))
         decoded += sum(whole.images[i].nbytes for i in w.held)
         assert m >= int(mine.sum()) * rows.dtype.itemsize + decoded
@@ -434,6 +540,15 @@ def test_the_long_video_benchmark_runs_end_to_end(tmp_path, capsys):
     rows = json.loads((tmp_path / "rows.json").read_text())
     assert [r["mode"] for r in rows] == ["windows", "whole"] and rows[1]["same"] == "yes"
     assert all(0 <= r["recall"] <= 1 and r["peak_gb"] > 0 for r in rows)
+    # A voxel-fused export of the same capture, its views recovered from the images.
+    assert bench.main(["--frames", "6", "--resolution", "32x48", "--modes", "whole",
+                       "--cache", str(tmp_path), "--fused",
+                       "--json", str(tmp_path / "fused.json")]) == 0
+    fused = load_scene(tmp_path / "street-video-6-32x48-fused")
+    assert (fused.view_id == -1).any() and len(fused) < len(load_scene(
+        tmp_path / "street-video-6-32x48"))
+    row, = json.loads((tmp_path / "fused.json").read_text())
+    assert row["gaussians"] == len(fused) and 0 <= row["recall"] <= 1
 
 
 def test_candidate_sets_concatenate_as_one_packing_of_all():

@@ -104,8 +104,8 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
         Filter the capture in windows of consecutive views (:func:`clearsplat.batch.
         filter_windows`: memory bounded by a window). Default: from
         :data:`~clearsplat.batch.windows.WINDOWS_FROM` views on, where the bundle's PLY is
-        binary with ``view_id`` (none shared by several views) and no report is asked for,
-        and whenever ``workers`` or ``address`` is given.
+        binary with ``view_id`` and no report is asked for, and whenever ``workers`` or
+        ``address`` is given.
     workers, address : optional
         Run the windows as Ray tasks: on a local instance with ``workers`` CPUs, or on the
         cluster at ``address``.
@@ -132,21 +132,14 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
     if windows is None:
         windows = asked or (not report and _windowed(scene))
     if windows:
-        from .windows import SharedViewsError, filter_windows
+        from .windows import filter_windows
         if report:
             raise ClearsplatError("a capture filtered in windows has no report (it would "
                                   "render the whole capture at once); leave out --report",
                                   field="--report")
-        try:
-            return filter_windows(scene, out, config=config, keep_all=keep_all,
-                                  copy_images=copy_images, force=force, workers=workers,
-                                  address=address, progress=progress, log=log)
-        except SharedViewsError as e:   # found before anything is written
-            if asked:
-                raise
-            if log is not None:
-                log(f"{e.count:,} Gaussians are shared by several views (a fused export): "
-                    "filtered whole, not in windows")
+        return filter_windows(scene, out, config=config, keep_all=keep_all,
+                              copy_images=copy_images, force=force, workers=workers,
+                              address=address, progress=progress, log=log)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         # A PLY without view_id: each Gaussian's view recovered from the images (one line).
@@ -183,8 +176,7 @@ def filter_scene(scene, out, *, config=None, keep_all: bool = False, report: boo
 
 def _windowed(scene) -> bool:
     """Whether the bundle ``scene`` is filtered in windows by default: enough views, and a
-    binary PLY with ``view_id`` that can be read in pieces (one holding Gaussians shared by
-    several views, a fused export, goes whole once the windows find them)."""
+    binary PLY with ``view_id`` that can be read in pieces."""
     from ..io import load_cameras
     from ..io.ply import PlyRows
     from .windows import uses_windows

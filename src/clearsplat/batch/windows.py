@@ -12,7 +12,10 @@ and the views that verify it, the nearest frames of a video) and their own neigh
 first-round removals the second round builds on.
 
 What a window holds is read from the PLY in pieces (:class:`clearsplat.io.ply.PlyRows`): its
-rows and images only, never the whole file. Each window's verdicts are written to the state
+rows and images only, never the whole file. Gaussians shared by several views (view id -1, a
+fused export) belong to no block: a window holds those that its cameras can see
+(:func:`seen_by`), as static content around its own; they are found once, when the run
+starts, and their rows kept in the state folder. Each window's verdicts are written to the state
 folder beside ``out`` (``.OUT.clearsplat-windows``) as it finishes, so a killed run started
 again with the same input and config resumes with the windows not yet done; the outputs are
 written at the end, the kept rows copied from the input a piece at a time. The windows run
@@ -45,7 +48,7 @@ from ..io.bundle import bundle_camera_file
 from ..scene import SHARED
 
 __all__ = ["Window", "plan_windows", "filter_windows", "uses_windows", "order_breaks",
-           "WINDOW_VIEWS", "MARGIN_VIEWS", "WINDOWS_FROM"]
+           "seen_by", "WINDOW_VIEWS", "MARGIN_VIEWS", "WINDOWS_FROM"]
 
 #: Views each window judges (about; the capture is split into blocks of equal size).
 WINDOW_VIEWS = 32
@@ -56,17 +59,6 @@ WINDOWS_FROM = 96
 
 _STATE_SUFFIX = ".clearsplat-windows"
 _PLAN_FILE = "plan.json"
-
-
-class SharedViewsError(ClearsplatError):
-    """The capture holds Gaussians shared by several views (view id -1, a fused export):
-    windows cut a capture by view, so it is filtered whole. ``count``: how many."""
-
-    def __init__(self, count: int, path):
-        super().__init__(f"{count:,} Gaussians are shared by several views (view id -1, a "
-                         "fused export): windows cut a capture by view; filter it whole",
-                         path=path, field="view_id")
-        self.count = count
 
 
 @dataclass(frozen=True)
@@ -119,6 +111,47 @@ def order_breaks(cameras, *, margin: int = MARGIN_VIEWS) -> np.ndarray:
     return out
 
 
+#: A Gaussian's reach in the image, in standard deviations of its projection: the rasterizer
+#: draws it to where its alpha falls below 1/255, at most sqrt(2 ln 255) = 3.33 of them.
+_REACH_SIGMAS = 3.5
+
+
+def seen_by(means, scales, cameras) -> np.ndarray:
+    """(M,) bool: the Gaussians that may cover a pixel of at least one of ``cameras``.
+
+    A Gaussian is seen where its centre lies in front of the camera and the disc of
+    :data:`_REACH_SIGMAS` times its projected standard deviation around the centre's projection
+    meets the image. The projected standard deviation is bounded by the largest scale times
+    the Frobenius norm of the projection's Jacobian at the centre (it is never smaller than
+    the largest singular value), widened by the rasterizer's 0.3 px^2 blur and one pixel: a
+    Gaussian the rasterizer draws in a camera is always seen; a few that it does not draw may
+    be.
+
+    Parameters
+    ----------
+    means : (M, 3) array_like
+        World centres.
+    scales : (M, 3) array_like
+        Standard deviations along the Gaussians' axes (world units).
+    cameras : sequence of Camera
+    """
+    means = np.asarray(means, np.float64)
+    largest = np.asarray(scales, np.float64).max(axis=1) if len(means) else np.zeros(0)
+    out = np.zeros(len(means), bool)
+    for cam in cameras:
+        pc = cam.to_camera(means)
+        z = pc[:, 2]
+        front = z > 0
+        zf = np.where(front, z, 1.0)
+        x, y = pc[:, 0] / zf, pc[:, 1] / zf
+        jac2 = (cam.fx / zf) ** 2 * (1 + x * x) + (cam.fy / zf) ** 2 * (1 + y * y)
+        reach = _REACH_SIGMAS * np.sqrt(largest ** 2 * jac2 + 0.3) + 1.0
+        u, v = cam.fx * x + cam.cx, cam.fy * y + cam.cy
+        out |= front & (u > -reach) & (u < cam.width + reach) & (v > -reach) \
+            & (v < cam.height + reach)
+    return out
+
+
 #: :func:`filter_windows` warns when more than this share of the views break the order.
 _BREAKS_WARN = 0.1
 
@@ -133,8 +166,37 @@ def _view_rows(views: np.ndarray, held: range) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0, np.int64)
 
 
+def _shared_file(state: Path, window: Window) -> Path:
+    return state / f"shared-{window.index}.npy"
+
+
+def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: Path) -> None:
+    """Write each window's shared rows (view id -1, seen by one of its cameras: :func:`seen_by`)
+    into the state folder, for the windows whose file is not there yet; the shared Gaussians
+    read a piece at a time."""
+    from ..io.ply import PIECE_ROWS
+    todo = [w for w in windows if not _shared_file(state, w).is_file()]
+    if not todo:
+        return
+    shared = np.flatnonzero(views == SHARED)
+    found: dict = {w.index: [] for w in todo}
+    for a in range(0, shared.size, PIECE_ROWS):
+        rows = shared[a:a + PIECE_ROWS]
+        g = ply.read(rows)[0]
+        for w in todo:
+            found[w.index].append(rows[seen_by(g.means, g.scales,
+                                               [cameras[i] for i in w.held])])
+        del g
+    for w in todo:
+        rows = np.concatenate(found.pop(w.index)) if shared.size else np.zeros(0, np.int64)
+        tmp = state / f".shared-{w.index}.tmp.npy"
+        np.save(tmp, rows.astype(np.int64))
+        os.replace(tmp, _shared_file(state, w))
+
+
 def _load_window(bundle: Path, state: Path, window: Window):
-    """The window's scene (views renumbered from 0) and its rows in the input PLY."""
+    """The window's scene (views renumbered from 0; shared Gaussians stay -1) and its rows in
+    the input PLY: its views' rows and the shared ones its cameras see, in file order."""
     from ..io import load_cameras, load_render_settings, read_image
     from ..io.ply import PlyRows
     from ..scene import Scene
@@ -142,13 +204,17 @@ def _load_window(bundle: Path, state: Path, window: Window):
     views = np.load(state / "views.npy", mmap_mode="r")
     rows = _view_rows(views, window.held)
     del views
+    shared = np.load(_shared_file(state, window))
+    if shared.size:
+        rows = np.union1d(rows, shared)
     gaussians, view_id, pixel_id = PlyRows(bundle / "gaussians.ply").read(rows)
     cameras, image_paths = load_cameras(bundle)
     held = list(window.held)
     images = [read_image(image_paths[i], expected_size=(cameras[i].width, cameras[i].height))
               for i in held]
     settings = load_render_settings(bundle_camera_file(bundle))
-    scene = Scene(gaussians, (view_id - window.held.start).astype(np.int32), pixel_id,
+    view_id = np.where(view_id == SHARED, SHARED, view_id - window.held.start)
+    scene = Scene(gaussians, view_id.astype(np.int32), pixel_id,
                   [cameras[i] for i in held], images, settings)
     return scene, rows
 
@@ -238,7 +304,8 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     Parameters
     ----------
     scene : str or os.PathLike
-        The bundle folder; its ``gaussians.ply`` binary with ``view_id``.
+        The bundle folder; its ``gaussians.ply`` binary with ``view_id`` (-1: shared by
+        several views, held by every window whose cameras see it).
     out : str or os.PathLike
         The output folder, written in full at the end (:func:`clearsplat.batch.filter_scene`
         writes the same files, but ``report/``).
@@ -267,8 +334,7 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     ------
     ClearsplatError
         Bad input (naming the file and field), an ``out`` that may not be written, or a window
-        that failed (its views and the cause; the windows done are kept for a rerun);
-        :class:`SharedViewsError` where the capture holds Gaussians shared by several views.
+        that failed (its views and the cause; the windows done are kept for a rerun).
     """
     from ..filter import FilterConfig
     from ..filter.pipeline import resolve_auto
@@ -294,7 +360,10 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     report = progress or (lambda stage, d, total: None)
     report("windows", len(done), len(windows))
     resolved = resolve_auto(config, len(cameras))
-    memory = _window_memory(windows, views, cameras, ply.dtype.itemsize, resolved)
+    _find_shared(ply, views, cameras, windows, state)
+    shared = [int(np.load(_shared_file(state, w), mmap_mode="r").shape[0]) for w in windows]
+    memory = _window_memory(windows, views, cameras, ply.dtype.itemsize, resolved,
+                            shared=shared)
     del views
     jobs = [{**w.record(), "bundle": os.fspath(bundle.resolve()),
              "state": os.fspath(state.resolve()), "count": ply.count,
@@ -324,15 +393,17 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
 
 
 def _window_memory(windows: list[Window], views: np.ndarray, cameras, record_bytes: int,
-                   config) -> list[int]:
+                   config, *, shared=None) -> list[int]:
     """Bytes each window may need at its peak: its rows read and decoded, and the filter's
-    estimate for its Gaussians and cameras (Ray's ``memory`` resource for its task)."""
+    estimate for its Gaussians and cameras (Ray's ``memory`` resource for its task).
+    ``shared``: per window, the shared Gaussians it holds besides its views' own."""
     from .._memory import estimate_filter_memory
-    per_view = np.bincount(views, minlength=len(cameras))
+    per_view = np.bincount(views[views >= 0], minlength=len(cameras))
     budget = None if config.view_memory is None else int(config.view_memory * 1e9)
     out = []
-    for w in windows:
-        n = int(per_view[w.held.start:w.held.stop].sum())
+    for k, w in enumerate(windows):
+        n = int(per_view[w.held.start:w.held.stop].sum()) + (0 if shared is None
+                                                               else int(shared[k]))
         out.append(2 * n * record_bytes + estimate_filter_memory(
             n, cameras[w.held.start:w.held.stop], view_budget=budget))
     return out
@@ -340,7 +411,7 @@ def _window_memory(windows: list[Window], views: np.ndarray, cameras, record_byt
 
 def _checked_input(bundle: Path):
     """The bundle's PLY (in pieces), cameras, image paths and every row's view (int32),
-    checked: a view for every row, an image for every view."""
+    checked: a view (or -1, shared) for every row, an image for every view."""
     from ..io import load_cameras
     from ..io.ply import PlyRows
 
@@ -350,10 +421,8 @@ def _checked_input(bundle: Path):
         raise ClearsplatError("property 'view_id' is missing: a capture filtered in windows "
                               "needs each Gaussian's view", path=ply.path, field="view_id")
     views = ply.column("view_id")
-    shared = int(np.count_nonzero(views == SHARED))
-    if shared:
-        raise SharedViewsError(shared, ply.path)
-    bad = (views < 0) | (views >= len(cameras)) | (views != np.round(views))
+    bad = ((views < 0) & (views != SHARED)) | (views >= len(cameras)) \
+        | (views != np.round(views))
     if bad.any():
         i = int(np.argmax(bad))
         raise ClearsplatError(f"view id {views[i]} at vertex {i} is out of range: the bundle "
