@@ -264,14 +264,17 @@ def _random_rotations(rng, n):
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def test_seen_by_holds_every_gaussian_the_rasterizer_draws():
-    """Reference: each Gaussian rendered alone; whatever covers a pixel of a camera is seen."""
-    from clearsplat import Camera
+@pytest.mark.parametrize("eps2d, antialiased", [(0.3, False), (0.3, True), (3.0, False)])
+def test_seen_by_holds_every_gaussian_the_rasterizer_draws(eps2d, antialiased):
+    """Reference: the Gaussians the rasterizer keeps after culling (``PreparedView.visible``),
+    and each Gaussian rendered alone: whatever covers a pixel of a camera is seen."""
+    from clearsplat import Camera, RenderSettings
     from clearsplat.batch.windows import seen_by
     from clearsplat.cameras import look_at
-    from clearsplat.render import render
+    from clearsplat.render import prepare, render
     from clearsplat.scene import Gaussians
     rng = np.random.default_rng(7)
+    settings = RenderSettings(eps2d=eps2d, antialiased=antialiased)
     cams = [Camera(K=[[40.0, 0, 30.0], [0, 40.0, 20.0], [0, 0, 1]],
                    camera_to_world=look_at(eye, (0.0, 0.0, 0.0)), width=60, height=40)
             for eye in ((0.0, -4.0, 0.5), (3.0, -3.0, 1.0))]
@@ -282,17 +285,21 @@ def test_seen_by_holds_every_gaussian_the_rasterizer_draws():
     g = Gaussians(means=means, scales=scales, quats=_random_rotations(rng, n),
                   opacities=rng.uniform(0.05, 0.99, n), sh=rng.uniform(0, 1, (n, 1, 3)))
     for k in range(len(cams)):
-        seen = seen_by(means, scales, cams[k:k + 1])
-        drawn = np.array([render(g, cams[k], keep=np.arange(n) == i).alpha.max() > 0
-                          for i in range(n)])
-        assert drawn.sum() > 100
-        assert not (drawn & ~seen).any()
+        seen = seen_by(means, scales, cams[k:k + 1], eps2d=eps2d)
+        kept = np.zeros(n, bool)
+        kept[prepare(g, cams[k], settings=settings).visible] = True
+        drawn = np.array([render(g, cams[k], keep=np.arange(n) == i,
+                                 settings=settings).alpha.max() > 0 for i in range(n)])
+        assert drawn.sum() > 100 and not (drawn & ~kept).any()
+        assert not (kept & ~seen).any()
         # Not everything: of the round ones, at most half again as many seen as drawn (the
-        # bound takes an elongated one's largest scale in every direction).
+        # bound takes an elongated one's largest scale in every direction; it ignores the
+        # opacity, which the antialiased mode lowers for small ones until more are culled).
         round_ = np.arange(n) < n // 2
-        assert seen[round_].sum() <= 1.5 * drawn[round_].sum()
-    assert np.array_equal(seen_by(means, scales, cams),
-                          seen_by(means, scales, cams[:1]) | seen_by(means, scales, cams[1:]))
+        assert seen[round_].sum() <= (1.6 if antialiased else 1.5) * drawn[round_].sum()
+    assert np.array_equal(seen_by(means, scales, cams, eps2d=eps2d),
+                          seen_by(means, scales, cams[:1], eps2d=eps2d)
+                          | seen_by(means, scales, cams[1:], eps2d=eps2d))
     # Closed form: a point one pixel inside the image's left border is seen; 5 px outside
     # it is not (its reach is 3.5 sqrt(0.3) + 1 = 2.9 px); behind the camera is not.
     cam = Camera(K=[[50.0, 0, 30.0], [0, 50.0, 20.0], [0, 0, 1]], camera_to_world=np.eye(4),
@@ -301,6 +308,7 @@ def test_seen_by_holds_every_gaussian_the_rasterizer_draws():
     pts = np.array([[(1 - 30) / 50 * 2, 0, 2], [(-5 - 30) / 50 * 2, 0, 2], [0, 0, -2],
                     [(-2.5 - 30) / 50 * 2, 0, 2]])
     assert seen_by(pts, tiny, [cam]).tolist() == [True, False, False, True]
+    assert seen_by(pts, tiny, [cam], eps2d=3.0).tolist() == [True, True, False, True]
     assert seen_by(np.zeros((0, 3)), np.zeros((0, 3)), [cam]).shape == (0,)
 
 
@@ -319,7 +327,11 @@ def fused(video, tmp_path_factory):
     # only those up to its own see it, and the last windows do not hold the first ones'.
     cams = load_scene(video).cameras
     ahead = np.stack([c.camera_to_world[:3, 3] + 0.1 * c.camera_to_world[:3, 2] for c in cams])
-    k = len(cams)
+    # And three far behind every camera, which no window holds.
+    first = cams[0].camera_to_world
+    ahead = np.concatenate([ahead, first[:3, 3] - 30.0 * first[:3, 2]
+                            + np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]])])
+    k = len(ahead)
     g = Gaussians(means=np.concatenate([g.means, ahead]),
                   scales=np.concatenate([g.scales, np.full((k, 3), 1e-3, g.scales.dtype)]),
                   quats=np.concatenate([g.quats, np.tile(g.quats[:1], (k, 1))]),
@@ -327,13 +339,27 @@ def fused(video, tmp_path_factory):
                   sh=np.concatenate([g.sh, g.sh[:k]]))
     write_ply(root / "gaussians.ply", g, view_id=np.concatenate([view_id, np.full(k, -1)]),
               pixel_id=np.concatenate([pixel_id, np.full(k, -1)]))
+    assert all((c.to_camera(ahead[-3:])[:, 2] < 0).all() for c in cams)
     return root
 
 
-def test_shared_gaussians_go_to_the_windows_that_see_them(fused, tmp_path):
+def test_shared_gaussians_go_to_the_windows_that_see_them(fused, tmp_path, monkeypatch):
     """Reference: each window's scene cut from the whole in memory, its views' Gaussians and
-    the shared ones its cameras see (seen_by), filtered on its own."""
+    the shared ones its cameras see (seen_by), filtered on its own; and what each window loads
+    holds every shared Gaussian that the rasterizer keeps in one of its cameras and none that
+    lies behind them all."""
+    import clearsplat.batch.windows as w_module
     from clearsplat.batch.windows import seen_by
+    from clearsplat.render import prepare
+    loaded = {}
+    load = w_module._load_window
+
+    def spy(bundle, state, window):
+        scene, rows = load(bundle, state, window)
+        loaded[window.index] = rows
+        return scene, rows
+
+    monkeypatch.setattr(w_module, "_load_window", spy)
     scene = load_scene(fused)
     config = resolve_auto(FilterConfig(), scene.num_views)
     shared = scene.view_id == -1
@@ -360,8 +386,38 @@ def test_shared_gaussians_go_to_the_windows_that_see_them(fused, tmp_path):
     assert expected.any()
     assert np.array_equal(removed, expected)
     assert not (tmp_path / ".out.clearsplat-windows").exists()
+    behind = np.flatnonzero(shared)[-3:]
+    for w in plan_windows(scene.num_views, **OPTIONS):
+        rows = loaded[w.index]
+        drawn = np.zeros(len(scene), bool)
+        for c in scene.cameras[w.held.start:w.held.stop]:
+            drawn[prepare(scene.gaussians, c, settings=scene.render_settings).visible] = True
+        assert np.isin(np.flatnonzero(shared & drawn), rows).all()
+        assert not np.isin(behind, rows).any()
+        assert np.array_equal(rows, np.flatnonzero(np.isin(scene.view_id, list(w.held))
+                                                   | (shared & seen_by(
+                                                       scene.gaussians.means,
+                                                       scene.gaussians.scales,
+                                                       scene.cameras[w.held.start:w.held.stop]))))
+    # No region maps to a shared Gaussian: all are kept, in the output PLY too.
     kept = read_ply(tmp_path / "out" / "gaussians.ply")[1]
-    assert (kept == -1).sum() == (shared & ~removed).sum()
+    assert not removed[shared].any() and (kept == -1).sum() == shared.sum()
+
+
+def test_a_shared_gaussian_with_a_pixel_gets_one_line(fused, tmp_path):
+    import shutil
+    bad = tmp_path / "bad"
+    shutil.copytree(fused, bad)
+    g, view_id, pixel_id = read_ply(bad / "gaussians.ply")
+    i = int(np.flatnonzero(view_id == -1)[3])
+    pixel_id[i] = 5
+    write_ply(bad / "gaussians.ply", g, view_id=view_id, pixel_id=pixel_id)
+    with pytest.raises(ClearsplatError, match=rf"pixel id 5 at vertex {i} is out of range for "
+                                              r"view -1 \(-1: shared, no pixel\)") as e:
+        filter_windows(bad, tmp_path / "out", **OPTIONS)
+    assert e.value.field == "pixel_id"
+    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / ".out.clearsplat-windows").exists()
 
 
 def test_a_fused_capture_in_one_window_is_the_whole_filter(fused, tmp_path, monkeypatch,

@@ -116,14 +116,14 @@ def order_breaks(cameras, *, margin: int = MARGIN_VIEWS) -> np.ndarray:
 _REACH_SIGMAS = 3.5
 
 
-def seen_by(means, scales, cameras) -> np.ndarray:
-    """(M,) bool: the Gaussians that may cover a pixel of at least one of ``cameras``.
+def seen_by(means, scales, cameras, *, eps2d: float = 0.3) -> np.ndarray:
+    """The Gaussians that may cover a pixel of at least one of ``cameras``.
 
     A Gaussian is seen where its centre lies in front of the camera and the disc of
     :data:`_REACH_SIGMAS` times its projected standard deviation around the centre's projection
     meets the image. The projected standard deviation is bounded by the largest scale times
     the Frobenius norm of the projection's Jacobian at the centre (it is never smaller than
-    the largest singular value), widened by the rasterizer's 0.3 px^2 blur and one pixel: a
+    the largest singular value), widened by the rasterizer's blur ``eps2d`` and one pixel: a
     Gaussian the rasterizer draws in a camera is always seen; a few that it does not draw may
     be.
 
@@ -134,22 +134,32 @@ def seen_by(means, scales, cameras) -> np.ndarray:
     scales : (M, 3) array_like
         Standard deviations along the Gaussians' axes (world units).
     cameras : sequence of Camera
+    eps2d : float, default 0.3
+        The blur added to every projected covariance, px^2 (``RenderSettings.eps2d``).
+
+    Returns
+    -------
+    (M,) bool
     """
     means = np.asarray(means, np.float64)
-    largest = np.asarray(scales, np.float64).max(axis=1) if len(means) else np.zeros(0)
     out = np.zeros(len(means), bool)
     for cam in cameras:
-        pc = cam.to_camera(means)
-        z = pc[:, 2]
-        front = z > 0
-        zf = np.where(front, z, 1.0)
-        x, y = pc[:, 0] / zf, pc[:, 1] / zf
-        jac2 = (cam.fx / zf) ** 2 * (1 + x * x) + (cam.fy / zf) ** 2 * (1 + y * y)
-        reach = _REACH_SIGMAS * np.sqrt(largest ** 2 * jac2 + 0.3) + 1.0
-        u, v = cam.fx * x + cam.cx, cam.fy * y + cam.cy
-        out |= front & (u > -reach) & (u < cam.width + reach) & (v > -reach) \
-            & (v < cam.height + reach)
+        out |= _seen_by_camera(means, scales, cam, eps2d)
     return out
+
+
+def _seen_by_camera(means: np.ndarray, scales, cam, eps2d: float) -> np.ndarray:
+    largest = np.asarray(scales, np.float64).max(axis=1) if len(means) else np.zeros(0)
+    pc = cam.to_camera(means)
+    z = pc[:, 2]
+    front = z > 0
+    zf = np.where(front, z, 1.0)
+    x, y = pc[:, 0] / zf, pc[:, 1] / zf
+    jac2 = (cam.fx / zf) ** 2 * (1 + x * x) + (cam.fy / zf) ** 2 * (1 + y * y)
+    reach = _REACH_SIGMAS * np.sqrt(largest ** 2 * jac2 + eps2d) + 1.0
+    u, v = cam.fx * x + cam.cx, cam.fy * y + cam.cy
+    return front & (u > -reach) & (u < cam.width + reach) & (v > -reach) \
+        & (v < cam.height + reach)
 
 
 #: :func:`filter_windows` warns when more than this share of the views break the order.
@@ -170,23 +180,31 @@ def _shared_file(state: Path, window: Window) -> Path:
     return state / f"shared-{window.index}.npy"
 
 
-def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: Path) -> None:
+def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: Path, *,
+                 eps2d: float) -> None:
     """Write each window's shared rows (view id -1, seen by one of its cameras: :func:`seen_by`)
     into the state folder, for the windows whose file is not there yet; the shared Gaussians
-    read a piece at a time."""
+    read a piece at a time, each camera's view of a piece found once."""
     from ..io.ply import PIECE_ROWS
     todo = [w for w in windows if not _shared_file(state, w).is_file()]
     if not todo:
         return
     shared = np.flatnonzero(views == SHARED)
     found: dict = {w.index: [] for w in todo}
+    needed = sorted({i for w in todo for i in w.held})
     for a in range(0, shared.size, PIECE_ROWS):
         rows = shared[a:a + PIECE_ROWS]
         g = ply.read(rows)[0]
+        means = g.means.astype(np.float64)
+        seen = {w.index: np.zeros(rows.size, bool) for w in todo}
+        for i in needed:
+            hit = _seen_by_camera(means, g.scales, cameras[i], eps2d)
+            for w in todo:
+                if i in w.held:
+                    seen[w.index] |= hit
         for w in todo:
-            found[w.index].append(rows[seen_by(g.means, g.scales,
-                                               [cameras[i] for i in w.held])])
-        del g
+            found[w.index].append(rows[seen[w.index]])
+        del g, means, seen
     for w in todo:
         rows = np.concatenate(found.pop(w.index)) if shared.size else np.zeros(0, np.int64)
         tmp = state / f".shared-{w.index}.tmp.npy"
@@ -360,7 +378,9 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     report = progress or (lambda stage, d, total: None)
     report("windows", len(done), len(windows))
     resolved = resolve_auto(config, len(cameras))
-    _find_shared(ply, views, cameras, windows, state)
+    from ..io import load_render_settings
+    _find_shared(ply, views, cameras, windows, state,
+                 eps2d=load_render_settings(bundle_camera_file(bundle)).eps2d)
     shared = [int(np.load(_shared_file(state, w), mmap_mode="r").shape[0]) for w in windows]
     memory = _window_memory(windows, views, cameras, ply.dtype.itemsize, resolved,
                             shared=shared)
@@ -426,7 +446,16 @@ def _checked_input(bundle: Path):
     if bad.any():
         i = int(np.argmax(bad))
         raise ClearsplatError(f"view id {views[i]} at vertex {i} is out of range: the bundle "
-                              f"has {len(cameras)} cameras", path=ply.path, field="view_id")
+                              f"has {len(cameras)} cameras (0..{len(cameras) - 1}, or -1: "
+                              "shared)", path=ply.path, field="view_id")
+    if "pixel_id" in ply.dtype.names:
+        pixels = ply.column("pixel_id")
+        bad = (views == SHARED) & (pixels != -1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ClearsplatError(f"pixel id {pixels[i]} at vertex {i} is out of range for "
+                                  "view -1 (-1: shared, no pixel)", path=ply.path,
+                                  field="pixel_id")
     missing = [i for i, p in enumerate(image_paths) if p is None or not Path(p).is_file()]
     if missing:
         raise ClearsplatError(f"frame {missing[0]} image file not found ({len(missing)} of "
