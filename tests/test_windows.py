@@ -194,7 +194,9 @@ def test_a_killed_run_resumes_and_loses_nothing(video, windowed, tmp_path, capsy
         assert (out / name).read_bytes() == (windowed / name).read_bytes(), name
 
 
-def test_a_changed_config_starts_afresh(video, tmp_path, monkeypatch):
+@pytest.mark.parametrize("change", ["config", "version"])
+def test_a_changed_config_starts_afresh(video, tmp_path, monkeypatch, change):
+    import clearsplat
     import clearsplat.batch.windows as wmod
 
     out = tmp_path / "out"
@@ -208,13 +210,15 @@ def test_a_changed_config_starts_afresh(video, tmp_path, monkeypatch):
     def run(jobs, *args):
         # Every window runs again, under a plan that names the new config.
         seen.append(len(jobs))
-        assert json.loads((state / "plan.json").read_text())["config"] != before["config"]
+        assert json.loads((state / "plan.json").read_text())[change] != before[change]
         return real_run(jobs, *args)
 
     monkeypatch.setattr(wmod, "_run", run)
     lines = []
-    filter_windows(video, out, config=FilterConfig.preset("video"), log=lines.append,
-                   **OPTIONS)
+    if change == "version":
+        monkeypatch.setattr(clearsplat, "__version__", "0.0.1")
+    config = FilterConfig.preset("video") if change == "config" else None
+    filter_windows(video, out, config=config, log=lines.append, **OPTIONS)
     assert not any(line.startswith("resuming") for line in lines)
     assert seen == [len(plan_windows(14, **OPTIONS))]
 

@@ -14,14 +14,15 @@ first-round removals the second round builds on.
 What a window holds is read from the PLY in pieces (:class:`clearsplat.io.ply.PlyRows`): its
 rows and images only, never the whole file. Gaussians shared by several views (view id -1, a
 fused export) belong to no block: a window holds those that its cameras can see
-(:func:`seen_by`), as static content around its own; they are found once, when the run
-starts, and their rows kept in the state folder. Each window's verdicts are written to the state
-folder beside ``out`` (``.OUT.clearsplat-windows``) as it finishes, so a killed run started
-again with the same input and config resumes with the windows not yet done; the outputs are
-written at the end, the kept rows copied from the input a piece at a time. The windows run
-one after another in this process, or as tasks of a Ray cluster (``workers``/``address``,
-through :func:`clearsplat.batch.run_tasks`; the state folder and the bundle must be reachable
-at the same paths on every node). The removals are the same either way.
+(:func:`seen_by`), as static content around its own; they are found once, when the run starts,
+and their rows kept in the state folder. Each window's verdicts are written to the state folder
+beside ``out`` (``.OUT.clearsplat-windows``) as it finishes, so a killed run started again with
+the same input, config and clearsplat version resumes with the windows not yet done; the
+outputs are written at the end, the kept rows copied from the input a piece at a time. The
+windows run one after another in this process, or as tasks of a Ray cluster
+(``workers``/``address``, through :func:`clearsplat.batch.run_tasks`; the state folder and the
+bundle must be reachable at the same paths on every node). The removals are the same either
+way.
 
 Windows follow the input order: they suit a video or any capture taken along a path. Where
 the order does not follow the cameras (:func:`order_breaks`: more than a tenth of the views
@@ -277,11 +278,14 @@ def _state_folder(out: Path) -> Path:
 
 
 def _fingerprint(bundle: Path, config, windows: list[Window]) -> dict:
-    """What a resumed run must share with the run that wrote the state folder."""
+    """What a resumed run must share with the run that wrote the state folder (the version
+    too: the state folder holds the shared Gaussians each window's cameras see)."""
+    from .. import __version__
     ply = bundle / "gaussians.ply"
     st = ply.stat()
     cams = hashlib.sha256(Path(bundle_camera_file(bundle)).read_bytes()).hexdigest()
-    return {"bundle": os.fspath(bundle.resolve()), "ply_size": st.st_size,
+    return {"version": __version__, "bundle": os.fspath(bundle.resolve()),
+            "ply_size": st.st_size,
             "ply_mtime_ns": st.st_mtime_ns, "cameras": cams,
             "config": json.loads(json.dumps(config.to_dict())),
             "windows": [w.record() for w in windows]}
