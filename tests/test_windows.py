@@ -385,7 +385,14 @@ def test_shared_gaussians_go_to_the_windows_that_see_them(fused, tmp_path, monke
     # Every window holds shared Gaussians; the last does not hold those in front of the first
     # cameras.
     assert min(held_shared) > 0 and held_shared[-1] <= shared.sum() - 8
-    filter_windows(fused, tmp_path / "out", **OPTIONS)
+    ticks = []
+    filter_windows(fused, tmp_path / "out",
+                   progress=lambda stage, done, total: ticks.append((stage, done, total)),
+                   **OPTIONS)
+    # The shared Gaussians are found one camera at a time (one piece of the file), then the
+    # windows run.
+    assert ticks == ([("windows", 0, 4)] + [("shared", k, 14) for k in range(1, 15)]
+                     + [("windows", k, 4) for k in range(1, 5)])
     removed = np.load(tmp_path / "out" / "removed.npy")
     assert expected.any()
     assert np.array_equal(removed, expected)

@@ -182,10 +182,11 @@ def _shared_file(state: Path, window: Window) -> Path:
 
 
 def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: Path, *,
-                 eps2d: float) -> None:
+                 eps2d: float, report) -> None:
     """Write each window's shared rows (view id -1, seen by one of its cameras: :func:`seen_by`)
     into the state folder, for the windows whose file is not there yet; the shared Gaussians
-    read a piece at a time, each camera's view of a piece found once."""
+    read a piece at a time, each camera's view of a piece found once, each told to
+    ``report("shared", done, total)``."""
     from ..io.ply import PIECE_ROWS
     todo = [w for w in windows if not _shared_file(state, w).is_file()]
     if not todo:
@@ -193,6 +194,8 @@ def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: 
     shared = np.flatnonzero(views == SHARED)
     found: dict = {w.index: [] for w in todo}
     needed = sorted({i for w in todo for i in w.held})
+    total = len(range(0, shared.size, PIECE_ROWS)) * len(needed)
+    done = 0
     for a in range(0, shared.size, PIECE_ROWS):
         rows = shared[a:a + PIECE_ROWS]
         g = ply.read(rows)[0]
@@ -203,6 +206,8 @@ def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: 
             for w in todo:
                 if i in w.held:
                     seen[w.index] |= hit
+            done += 1
+            report("shared", done, total)
         for w in todo:
             found[w.index].append(rows[seen[w.index]])
         del g, means, seen
@@ -343,7 +348,8 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
         Views per block and views held on each side (:func:`plan_windows`); default
         :data:`WINDOW_VIEWS` and :data:`MARGIN_VIEWS`.
     progress : callable, optional
-        ``progress("windows", done, total)`` as windows finish.
+        ``progress("windows", done, total)`` as windows finish; before them, for a capture
+        with shared Gaussians, ``progress("shared", done, total)`` as each camera's are found.
     log : callable, optional
         ``log(line)``: the capture's size and the windows, once.
 
@@ -384,7 +390,7 @@ def filter_windows(scene, out, *, config=None, keep_all: bool = False,
     resolved = resolve_auto(config, len(cameras))
     from ..io import load_render_settings
     _find_shared(ply, views, cameras, windows, state,
-                 eps2d=load_render_settings(bundle_camera_file(bundle)).eps2d)
+                 eps2d=load_render_settings(bundle_camera_file(bundle)).eps2d, report=report)
     shared = [int(np.load(_shared_file(state, w), mmap_mode="r").shape[0]) for w in windows]
     memory = _window_memory(windows, views, cameras, ply.dtype.itemsize, resolved,
                             shared=shared)
