@@ -2,9 +2,9 @@
 # The GPU checks of docs/benchmarks.md ("On a GPU") in one go, on a machine with CUDA and
 # PyTorch: build a wheel of this checkout, then the CUDA tests, the decisions against the CPU
 # filter, the speed table, the native filter's speed on the same host cores, the decisions on a
-# dense street with the static verification base, the profile, the fast preset's rows and the
-# 32-view street row, each step capped in time and in this order, so that a short time on a GPU
-# machine measures what matters most.
+# dense street with the static verification base, the profile, the fast preset's rows (GPU and
+# native) and the 32-view street row, each step capped in time and in this order, so that a
+# short time on a GPU machine measures what matters most.
 #
 #     bash benchmarks/gpu_check.sh [OUTDIR] [SECONDS]
 #
@@ -48,6 +48,8 @@ step decisions_dense 90 12 python3 benchmarks/gpu_decisions.py --views 24 --fami
 step profile 60 40 python3 benchmarks/gpu_profile.py --views 4 --rows 12
 step speed_fast 70 12 python3 benchmarks/filter_speed.py --device cuda --set backend=torch \
     --preset fast --views 8,16 --repeats 1 --full-repeats 1
+step speed_fast_native 40 12 python3 benchmarks/filter_speed.py --preset fast --views 8,16 \
+    --repeats 1 --full-repeats 0
 step speed_street 120 12 python3 benchmarks/filter_speed.py --device cuda --set backend=torch \
     --views 32 --family street --repeats 1 --full-repeats 1
 say "done"

@@ -549,22 +549,26 @@ other views' passers-by; the `video` preset also leaves the frame on each side o
 
 Measured on 2026-11-29 on a GPU machine we had for a short time: one NVIDIA H200 (143,771 MiB,
 driver 580.159.04), 16 host cores, Python 3.12.3, PyTorch 2.11.0+cu130, clearsplat 0.12.0 built
-there as a wheel; object scenes at 256x448, today's default config and `fast` preset. That
-machine is not at hand, so this page's command does not regenerate these figures.
+there as a wheel; object scenes at 256x448 (street at 32 views), today's default config and
+`fast` preset. That machine is not at hand, so this page's command does not regenerate these
+figures.
 
 | views | torch backend on the H200, total s | its verification s | GPU peak GB | native CPU filter, the same 16 cores: total s / verification s | same decisions |
 |---|---|---|---|---|---|
 | 4 | 2.04 | 1.05 | 0.97 | 0.84 / 0.28 | yes |
 | 8 | 10.45 | 4.18 | 1.76 | 3.61 / 1.19 | no: 36 Gaussians differ (17,282 removed against 17,248) |
 | 16 | 32.05 | 10.00 | 4.37 | 10.90 / 2.94 | no |
-| 8, `fast` | 5.54 | 2.79 | 1.48 | not measured | yes |
-| 16, `fast` | 11.07 | 4.49 | 2.37 | not measured | yes |
+| 32 (street) | 49.24 | 18.29 | 5.65 | not measured / 5.71 | no |
+| 8, `fast` | 5.54 | 2.79 | 1.48 | 1.59 / 0.56 | yes |
+| 16, `fast` | 11.07 | 4.49 | 2.37 | 3.21 / 0.91 | yes |
 
 Commands: `python benchmarks/filter_speed.py --device cuda --set backend=torch --views 4,8,16
---repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one) and the same with
-`--preset fast --views 8,16 --repeats 1`; native: `python benchmarks/filter_speed.py --views
-4,8,16 --repeats 2 --full-repeats 1`. `bash benchmarks/gpu_check.sh OUTDIR 500` runs all of it
-in that order and then the 32-view street, which its last 68 s did not finish. The paper reports
+--repeats 2 --full-repeats 1` (medians of 2 GPU runs after an untimed one), the same with
+`--preset fast --views 8,16 --repeats 1` and `--views 32 --family street --repeats 1` (its
+native column: the verification of its own native run); native: `python
+benchmarks/filter_speed.py --views 4,8,16 --repeats 2 --full-repeats 1` and `--preset fast
+--views 8,16 --repeats 1 --full-repeats 0`. `bash benchmarks/gpu_check.sh OUTDIR` runs all of
+it, the street last (in 500 s it did not reach the street's end). The paper reports
 3.24 s (DepthSplat, 8 views) and 3.86 s (ReSplat, 16 views) on an RTX 4090. The native filter on
 those 16 cores is no faster than on the 2-core VM ("Speed" above: 0.79 / 3.63 / 10.27 s): its
 refinement and the verification's serial NumPy work do not spread over cores.
