@@ -136,8 +136,9 @@ def make_bundle(folder: Path, frames: int, height: int, width: int, seed: int = 
 
 def make_fused_bundle(folder: Path, source: Path, seed: int = 0) -> None:
     """The per-pixel bundle ``source`` as a voxel-fused export with its views recovered from
-    the images, in ``folder``, with the voxels' ``truth.npy`` and ``quality.npz`` (the test
-    views, the fused scene's unfiltered PSNR and the clean twin's)."""
+    the images, in ``folder``, with the voxels' ``truth.npy``, ``quality.npz`` (the test
+    views, the fused scene's unfiltered PSNR and the clean twin's) and ``association.json``
+    (:func:`fused_association`)."""
     import importlib.util
     from clearsplat import Camera, Scene
     from clearsplat.adapters.associate import associate_fused
@@ -153,6 +154,7 @@ def make_fused_bundle(folder: Path, source: Path, seed: int = 0) -> None:
     truth = np.load(source / "truth.npy").astype(np.float64)
     k = len(fused)
     share = np.bincount(voxel, truth, minlength=k) / np.bincount(voxel, minlength=k)
+    frame = aq.majority_view(voxel, scene.view_id, scene.num_views, weights=truth)
     cameras, images = scene.cameras, scene.images
     del scene, voxel
     a = associate_fused(fused, cameras, images)
@@ -166,7 +168,23 @@ def make_fused_bundle(folder: Path, source: Path, seed: int = 0) -> None:
     save_scene(out, tmp)
     np.save(tmp / "truth.npy", share > 0.5)
     np.savez(tmp / "quality.npz", **q)
+    (tmp / "association.json").write_text(json.dumps(
+        fused_association(a.view_id, share > 0.5, frame, len(cameras))))
     tmp.rename(folder)
+
+
+def fused_association(view_id: np.ndarray, distractor: np.ndarray, frame: np.ndarray,
+                      frames: int) -> dict:
+    """What the recovered association did on a fused video: the frame given the most voxels
+    and their share; of the distractor voxels, the shares given their own frame (the one most
+    of their distractor pixels came from, ``frame``), a frame 1-4 away, and shared (-1)."""
+    counts = np.bincount(view_id[view_id >= 0], minlength=frames)
+    v, f = view_id[distractor], frame[distractor]
+    near = (v >= 0) & (v != f) & (np.abs(v - f) <= 4)
+    return {"largest_frame": int(np.argmax(counts)),
+            "largest_share": float(counts.max() / len(view_id)),
+            "distractor_own": float(np.mean(v == f)), "distractor_near": float(np.mean(near)),
+            "distractor_shared": float(np.mean(v == -1))}
 
 
 def measure(mode: str, bundle: Path, out: Path, workers: int) -> dict:
@@ -257,6 +275,11 @@ def main(argv=None) -> int:
                 t = time.perf_counter()
                 make_fused_bundle(bundle, source)
                 print(f"(made {bundle} in {time.perf_counter() - t:.0f} s)", flush=True)
+            d = json.loads((bundle / "association.json").read_text())
+            print(f"(fused: frame {d['largest_frame']} holds {100 * d['largest_share']:.0f} % "
+                  f"of the voxels; the distractor voxels: {100 * d['distractor_own']:.0f} % "
+                  f"given their frame, {100 * d['distractor_near']:.0f} % a frame 1-4 away, "
+                  f"{100 * d['distractor_shared']:.0f} % shared)", flush=True)
         n = int(np.load(bundle / "truth.npy", mmap_mode="r").shape[0])
         if args.reach:
             print(f"{frames} frames: {reach(bundle)}", flush=True)

@@ -143,14 +143,19 @@ def seen_by(means, scales, cameras, *, eps2d: float = 0.3) -> np.ndarray:
     (M,) bool
     """
     means = np.asarray(means, np.float64)
+    largest = _largest_scales(scales, len(means))
     out = np.zeros(len(means), bool)
     for cam in cameras:
-        out |= _seen_by_camera(means, scales, cam, eps2d)
+        out |= _seen_by_camera(means, largest, cam, eps2d)
     return out
 
 
-def _seen_by_camera(means: np.ndarray, scales, cam, eps2d: float) -> np.ndarray:
-    largest = np.asarray(scales, np.float64).max(axis=1) if len(means) else np.zeros(0)
+def _largest_scales(scales, count: int) -> np.ndarray:
+    return np.asarray(scales, np.float64).max(axis=1) if count else np.zeros(0)
+
+
+def _seen_by_camera(means: np.ndarray, largest: np.ndarray, cam, eps2d: float) -> np.ndarray:
+    """:func:`seen_by` for one camera, given each Gaussian's largest scale."""
     pc = cam.to_camera(means)
     z = pc[:, 2]
     front = z > 0
@@ -200,9 +205,10 @@ def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: 
         rows = shared[a:a + PIECE_ROWS]
         g = ply.read(rows)[0]
         means = g.means.astype(np.float64)
+        largest = _largest_scales(g.scales, rows.size)
         seen = {w.index: np.zeros(rows.size, bool) for w in todo}
         for i in needed:
-            hit = _seen_by_camera(means, g.scales, cameras[i], eps2d)
+            hit = _seen_by_camera(means, largest, cameras[i], eps2d)
             for w in todo:
                 if i in w.held:
                     seen[w.index] |= hit
@@ -210,7 +216,7 @@ def _find_shared(ply, views: np.ndarray, cameras, windows: list[Window], state: 
             report("shared", done, total)
         for w in todo:
             found[w.index].append(rows[seen[w.index]])
-        del g, means, seen
+        del g, means, largest, seen
     for w in todo:
         rows = np.concatenate(found.pop(w.index)) if shared.size else np.zeros(0, np.int64)
         tmp = state / f".shared-{w.index}.tmp.npy"
@@ -458,7 +464,7 @@ def _checked_input(bundle: Path):
         raise ClearsplatError(f"view id {views[i]} at vertex {i} is out of range: the bundle "
                               f"has {len(cameras)} cameras (0..{len(cameras) - 1}, or -1: "
                               "shared)", path=ply.path, field="view_id")
-    if "pixel_id" in ply.dtype.names:
+    if "pixel_id" in ply.dtype.names and (views == SHARED).any():   # a second pass: fused only
         pixels = ply.column("pixel_id")
         bad = (views == SHARED) & (pixels != -1)
         if bad.any():
