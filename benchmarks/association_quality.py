@@ -28,9 +28,11 @@ the images it saw handed on) is written out as two kinds of export:
     ``round(p / voxel)``, voxels in sorted key order, confidence-softmax weights, positions and
     raw channels averaged, the voxel side chosen for about 5 pixels per voxel.
     :func:`~clearsplat.adapters.associate.associate_fused` gives each voxel a view from the
-    images, or shares it among the views (-1). A voxel is a distractor voxel when most of its
+    images, or shares it among the views (-1), and a voxel of one pixel, whose centre lies on
+    that pixel's centre, that view and pixel. A voxel is a distractor voxel when most of its
     pixels are a distractor's; its view is the majority view of those pixels. Reported: the
-    share of distractor voxels given their distractor's view, and of all voxels shared; for
+    share of distractor voxels given their distractor's view, and of all voxels shared and
+    given a pixel; for
     the recovered association and for the majority-view association
     (what an adapter does when the voxel map is known): recall of distractor voxels, share of
     the exact-removal PSNR gain (removing exactly the distractor voxels) and share of the other
@@ -313,13 +315,15 @@ def fused_case(world, scene, truth, *, seed: int) -> dict:
     row = {"voxels": k, "voxel_size": size, "distractor_voxels": int(dvox.sum()),
            "assoc_s": t_assoc, "ambiguous": float(rec.ambiguous.mean()),
            "shared": float(np.mean(rec.view_id == SHARED)),
+           "with_pixel": float(np.mean(rec.pixel_id >= 0)),
            "view_right": float(np.mean(rec.view_id[dvox] == dview[dvox])) if dvox.any()
            else float("nan")}
     base = _psnr(fused, None, world)
     row["exact_gain"] = _psnr(fused, ~dvox, world) - base
     majority = majority_view(voxel, scene.view_id, nv)
-    for name, views in (("recovered", rec.view_id), ("majority", majority)):
-        s = Scene(fused, view_id=views, pixel_id=None, cameras=scene.cameras,
+    for name, views, pixels in (("recovered", rec.view_id, rec.pixel_id),
+                                ("majority", majority, None)):
+        s = Scene(fused, view_id=views, pixel_id=pixels, cameras=scene.cameras,
                   images=scene.images)
         removed, secs = _filter(s)
         row[f"{name}_recall"] = float(removed[dvox].mean()) if dvox.any() else float("nan")
@@ -383,15 +387,16 @@ def format_tables(ordered, video, fused) -> str:
                      "| | | | | |")
     lines += ["", "(b) Voxel-fused export (`associate_fused` against the majority view)", "",
               ("| family | views | seed | voxels | distractor voxels | view right | shared | "
-               "ambiguous | recall rec. | of exact rec. | other rec. | off surface | "
+               "with pixel | ambiguous | recall rec. | of exact rec. | other rec. | off surface | "
                "recall maj. | of exact maj. | other maj. | filter s fused / per-pixel |"),
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in fused:
         ex = r["exact_gain"]
         lines.append(
             f"| {r['family']} | {r['views']} | {r['seed']} | {r['voxels']:,} | "
             f"{r['distractor_voxels']:,} | {100 * r['view_right']:.1f} % | "
-            f"{100 * r['shared']:.1f} % | {100 * r['ambiguous']:.2f} % | "
+            f"{100 * r['shared']:.1f} % | {100 * r['with_pixel']:.1f} % | "
+            f"{100 * r['ambiguous']:.2f} % | "
             f"{r['recovered_recall']:.3f} | "
             f"{100 * _share(r['recovered_gain'], ex):.0f} % | "
             f"{100 * r['recovered_other']:.2f} % | "

@@ -322,8 +322,19 @@ def test_fused_distractor_voxels_get_their_distractors_view(family):
         distractor = distractor > 0.5
         its_view = AQ.majority_view(voxel, scene.view_id, 6, weights=truth.astype(float))
         a = associate_fused(fused, world.cameras, world.images)
-        assert a.source == "images" and np.all(a.pixel_id == -1)
+        assert a.source == "images"
         assert a.view_id.min() >= -1 and a.view_id.max() < 6      # -1: shared static content
+        # A voxel of one pixel is that pixel's Gaussian: its view and pixel (unless a second
+        # camera puts it on a pixel centre too). A voxel given a pixel is one of its own pixels
+        # (of one pixel, or near enough), but for those chance puts on a pixel centre ((2 x
+        # 0.02)^2 per camera).
+        one = np.bincount(voxel, minlength=k) == 1
+        taken = a.pixel_id >= 0
+        mine = np.zeros(k, dtype=bool)
+        mine[voxel[taken[voxel] & (a.view_id[voxel] == scene.view_id)
+                   & (a.pixel_id[voxel] == scene.pixel_id)]] = True
+        assert one.mean() > 0.2 and mine[one].mean() > 0.999
+        assert np.mean(taken & ~mine) < 2 * 6 * (2 * CENTRE_TOLERANCE) ** 2
         right += int(np.sum(a.view_id[distractor] == its_view[distractor]))
         total += int(distractor.sum())
     assert total > 100
@@ -476,11 +487,122 @@ def test_the_filter_maps_no_region_to_shared_gaussians():
     fs = associate_fused(fused, world.cameras, world.images).to_scene(
         fused, world.cameras, world.images)
     shared = fs.view_id == -1
-    assert shared.mean() > 0.3
+    assert shared[fs.pixel_id < 0].mean() > 0.3           # of the voxels of several pixels
     res = filter_distractors(fs, config=FilterConfig(), extractor=get_extractor("local"))
     assert res.candidates and all(not shared[c.gaussians].any() for c in res.candidates)
     assert res.removed[distractor].mean() > 0.5
     assert res.removed[shared].mean() < 0.01
+
+
+def _slow_unhidden(pixel, weight, depth, margin):
+    out = []
+    for i in range(len(weight)):
+        pair = [j for j in range(len(weight)) if pixel[j] == pixel[i]]
+        before = [j for j in pair if j < i]
+        alpha = weight[i] / (1.0 - sum(weight[j] for j in before))
+        t = 1.0
+        for j in before:
+            if depth[j] < (1.0 - margin) * depth[i]:
+                t *= 1.0 - weight[j] / (1.0 - sum(weight[m] for m in before if m < j))
+        out.append(alpha * t)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_unhidden_weights_match_a_loop(seed):
+    rng = np.random.default_rng(seed)
+    pixel = np.sort(rng.integers(0, 40, 300))
+    depth = np.empty(300)
+    weight = np.empty(300)
+    for p in np.unique(pixel):
+        at = np.flatnonzero(pixel == p)
+        depth[at] = np.sort(rng.uniform(1.0, 1.3, len(at)))       # front to back
+        alpha = rng.uniform(0.05, 0.99, len(at))
+        weight[at] = alpha * np.concatenate([[1.0], np.cumprod(1.0 - alpha)[:-1]])
+    got = assoc._unhidden_weights(pixel, weight.astype(np.float32), depth)
+    want = _slow_unhidden(pixel, weight.astype(np.float32).astype(float), depth,
+                          assoc.HIDDEN_DEPTH)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-9)
+    # With no margin it is the render's own weight.
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(assoc, "HIDDEN_DEPTH", 0.0)
+    try:
+        same = assoc._unhidden_weights(pixel, weight.astype(np.float32), depth)
+    finally:
+        monkey.undo()
+    np.testing.assert_allclose(same, weight, rtol=1e-4, atol=1e-7)
+
+
+def test_a_surface_does_not_hide_its_own_gaussians():
+    # Two Gaussians at one pixel, opacities 0.8 and 0.5: the second 3 % behind the first is of
+    # the same surface (weight 0.5, its opacity); 10 % behind, the first hides it (0.5 x 0.2).
+    weight = np.array([0.8, 0.5 * 0.2])
+    for behind, want in ((1.03, 0.5), (1.10, 0.1)):
+        got = assoc._unhidden_weights(np.array([7, 7]), weight, np.array([2.0, 2.0 * behind]))
+        np.testing.assert_allclose(got, [0.8, want], rtol=1e-12)
+    # Pixels do not hide each other.
+    got = assoc._unhidden_weights(np.array([3, 4]), np.array([0.8, 0.5]), np.array([2.0, 9.0]))
+    np.testing.assert_allclose(got, [0.8, 0.5])
+    assert len(assoc._unhidden_weights(np.zeros(0, int), np.zeros(0), np.zeros(0))) == 0
+
+
+def test_a_wall_right_behind_another_is_seen_by_the_view_that_shows_it():
+    # A copy of a wall along the camera's rays, 1 % farther: each copy covers the same pixels
+    # as its original, which hides it in the render (opacity 0.9), yet the view sees it as
+    # much as the original. 20 % farther, the front wall hides it: its weight at each pixel is
+    # its own opacity there times the front wall's transmittance.
+    from clearsplat import Gaussians
+    from clearsplat.render import prepare, render
+
+    wall, cams = _wall_and_cameras((2.0,))
+    wall = dataclasses.replace(wall, scales=np.full_like(wall.scales, 0.02),
+                               opacities=np.full_like(wall.opacities, 0.9))
+    eye = cams[0].position
+    images = [np.full((36, 48, 3), 0.6)]
+    n = len(wall)
+    inside = np.flatnonzero(np.abs(wall.means[:, 0]) < 0.4)
+    for gap in (0.01, 0.2):
+        both = Gaussians(means=np.r_[wall.means, eye + (wall.means - eye) * (1 + gap)],
+                         scales=np.r_[wall.scales, wall.scales * (1 + gap)],
+                         **{f: np.r_[getattr(wall, f), getattr(wall, f)]
+                            for f in ("quats", "opacities", "sh")})
+        total, _ = assoc._view_sums(both, cams, images, settings=None, num_threads=1)
+        front, behind = (total[inside, 0].astype(float), total[n + inside, 0].astype(float))
+        if gap < assoc.HIDDEN_DEPTH:
+            np.testing.assert_allclose(behind, front, rtol=2e-3)
+        else:
+            through = 1.0 - render(wall, cams[0]).alpha.ravel()
+            for k, i in enumerate(inside[::9]):
+                alone = prepare(both.subset([n + i]), cams[0]).contributions(
+                    np.ones((36, 48), dtype=bool))
+                want = np.sum(alone.weight * through[alone.pixel])
+                np.testing.assert_allclose(behind[9 * k], want, rtol=2e-3)
+            assert np.all(behind < 0.5 * front)
+
+
+def test_one_pixel_gaussians_are_taken_only_where_real(prediction):
+    # A per-pixel prediction with every other Gaussian moved off its pixel's ray (as a fusion
+    # moves a voxel of several pixels): those on their ray get their view and pixel. A trained
+    # scene's centres (every one moved) lie on pixel centres by chance only: none is taken.
+    world, scene = prediction
+    g = scene.gaussians
+    rng = np.random.default_rng(0)
+    means = g.means.astype(np.float64)
+    # About 2 % of each one's distance from its camera: pixels off its ray.
+    reach = 0.02 * np.linalg.norm(means - world.cameras[0].position, axis=1, keepdims=True)
+    step = rng.normal(size=means.shape) * reach
+    moved = means + step * (np.arange(len(g)) % 2 == 1)[:, None]
+    hit, view, pixel = assoc._one_pixel_gaussians(moved, world.cameras)
+    on_ray = np.arange(len(g)) % 2 == 0
+    assert hit[on_ray].mean() > 0.99
+    assert hit[~on_ray].mean() < 2 * 8 * (2 * CENTRE_TOLERANCE) ** 2
+    assert np.array_equal(view[hit & on_ray], scene.view_id[hit & on_ray])
+    assert np.array_equal(pixel[hit & on_ray], scene.pixel_id[hit & on_ray])
+    everywhere = means + step
+    hit, _, _ = assoc._one_pixel_gaussians(everywhere, world.cameras)
+    assert not hit.any()
+    _, _, best, _ = assoc._nearest_centres(everywhere, world.cameras)
+    assert (best <= CENTRE_TOLERANCE).any()           # chance hits there were, none taken
 
 
 def test_gaussians_no_camera_renders_face_a_camera():
@@ -517,6 +639,11 @@ def test_summary_counts():
                          np.zeros(123_456, bool), "images")
     assert shared.summary() == ("associated 123,456 Gaussians from images: 23,456 got a view, "
                                 "100,000 shared by several views, 0 ambiguous")
+    pixels = Association(shared.view_id, np.where(np.arange(123_456) >= 120_000, 5, -1),
+                         shared.ambiguous, "images")
+    assert pixels.summary() == ("associated 123,456 Gaussians from images: 23,456 got a view "
+                                "(3,456 with their pixel), 100,000 shared by several views, "
+                                "0 ambiguous")
 
 
 def test_empty_export():

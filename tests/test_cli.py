@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import struct
@@ -437,14 +438,9 @@ def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, c
     views = len(json.loads((bundle / "cameras.json").read_text())["frames"])
     assert told[:views] == [("associate", k, views) for k in range(1, views + 1)], told[:5]
     assert told[views:] and all(stage != "associate" for stage, _, _ in told[views:])
-    line = next(x for x in stdout.splitlines() if x.startswith("associated "))
-    assert line.startswith(f"associated {n:,} Gaussians from images: ") and \
-        line.endswith("ambiguous (the PLY has no view_id)")
-    got, shared, ambiguous = (int(x.replace(",", "")) for x in
-                              line.split(": ")[1].split(" (")[0].replace(" got a view", "")
-                              .replace(" shared by several views", "")
-                              .replace(" ambiguous", "").split(", "))
-    assert got + shared + ambiguous == n and got > 0 and shared > 0
+    # Its Gaussians lie on their pixels' rays, as a per-pixel model puts them: each gets its
+    # view and pixel.
+    assert _association_line(stdout, n) == (n, n, 0, 0)
     assert np.load(tmp_path / "out" / "removed.npy").shape == (n,)
     # ... and the commands that show a filter output take the same bundle with it.
     cam = tmp_path / "cam.json"
@@ -454,6 +450,36 @@ def test_a_ply_without_view_id_is_associated_from_the_images(bundle, tmp_path, c
         assert main(["render", str(bundle), "--camera", str(cam), "--filtered",
                      str(tmp_path / "out"), "--out", str(tmp_path / "renders")]) == 0
     assert list((tmp_path / "renders").glob("*.png"))
+
+
+def _association_line(stdout: str, n: int) -> tuple[int, int, int, int]:
+    """The counts of ``clearsplat filter``'s association line: got a view, of them with their
+    pixel, shared, ambiguous."""
+    line = next(x for x in stdout.splitlines() if x.startswith("associated "))
+    found = re.fullmatch(rf"associated {n:,} Gaussians from images: ([\d,]+) got a view"
+                         r"(?: \(([\d,]+) with their pixel\))?, (?:([\d,]+) shared by several "
+                         r"views, )?([\d,]+) ambiguous \(the PLY has no view_id\)", line)
+    assert found, line
+    got, pixels, shared, ambiguous = (int((x or "0").replace(",", "")) for x in found.groups())
+    assert got + shared + ambiguous == n
+    return got, pixels, shared, ambiguous
+
+
+def test_a_trained_scene_is_associated_from_the_images(bundle, tmp_path, capsys):
+    # Centres off their pixels' rays (as a trainer leaves them): no Gaussian gets a pixel; the
+    # static ones the views see alike are shared.
+    edit_ply(bundle, drop("view_id"))
+    def move(cols):
+        for axis, step in zip("xyz", (0.003, -0.002, 0.004)):
+            t, v = cols[axis]
+            cols[axis] = (t, v + np.float32(step) * np.sin(np.arange(len(v), dtype=np.float32)))
+    edit_ply(bundle, move)
+    n = read_columns(bundle / "gaussians.ply")["x"][1].size
+    code, stdout, err = _filter(bundle, tmp_path / "out", capsys)
+    assert code == 0, err
+    got, pixels, shared, ambiguous = _association_line(stdout, n)
+    assert got > 0 and shared > 0 and pixels == 0
+    assert np.load(tmp_path / "out" / "removed.npy").shape == (n,)
 
 
 def test_a_ply_without_view_id_and_images_is_refused(bundle, tmp_path, capsys):

@@ -4,6 +4,7 @@ each written as the upstream code writes it (``tests/upstream_exports.py``) from
 prediction of known views and pixels, and imported with the association recovered."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -230,20 +231,33 @@ def test_da3_cameras_that_do_not_fit_are_refused(tmp_path, world, other_world):
 # voxels: AnySplat, WorldMirror
 # ------------------------------------------------------------------------------------------------
 def _check_voxels(scene, imported, source, transient, path, opacity):
-    """The file's vertices in its order, no pixel, the association
+    """The file's vertices in its order, the association
     :func:`~clearsplat.adapters.associate.associate_fused` gives the file's Gaussians with the
-    scene's cameras, and the majority view (the view that saw it) for nearly every
-    vertex made mostly of transient pixels. Returns which vertices those are."""
-    from clearsplat.adapters.associate import associate_fused
+    scene's cameras, a voxel of one pixel that pixel's view and pixel and nearly every other
+    no pixel, and the majority view (the view that saw it) for nearly every vertex made
+    mostly of transient pixels. Returns which vertices those are."""
+    from clearsplat.adapters.associate import CENTRE_TOLERANCE, associate_fused
     g_file, _, _ = read_export(path, opacity=opacity)
     assert np.array_equal(imported.gaussians.means, g_file.means)
     assert np.array_equal(imported.gaussians.opacities, g_file.opacities)
-    assert (imported.pixel_id == -1).all()
     direct = associate_fused(g_file, imported.cameras, scene.images,
                              settings=imported.render_settings)
     assert np.array_equal(imported.view_id, direct.view_id)
+    assert np.array_equal(imported.pixel_id, direct.pixel_id)
     majority, counts = _majority(scene, source)
     k = len(imported)
+    # A vertex given a pixel is one of its own pixels (a voxel of one pixel, or one whose
+    # softmax weights all but make it one), but for those chance puts on a pixel centre.
+    kept = np.flatnonzero(source >= 0)
+    taken = imported.pixel_id >= 0
+    mine = np.zeros(k, dtype=bool)
+    hit = taken[source[kept]] & (imported.view_id[source[kept]] == scene.view_id[kept]) \
+        & (imported.pixel_id[source[kept]] == scene.pixel_id[kept])
+    mine[source[kept][hit]] = True
+    one = counts.sum(axis=1) == 1
+    assert one.sum() > 50 and mine[one].mean() >= 0.99
+    chance = len(scene.cameras) * (2 * CENTRE_TOLERANCE) ** 2
+    assert np.mean(taken & ~mine) < 2 * chance
     tr = np.bincount(source[source >= 0], transient[source >= 0], minlength=k) > \
         0.5 * counts.sum(axis=1)
     assert tr.sum() > 50 and (imported.view_id == majority)[tr].mean() >= 0.9
@@ -609,7 +623,10 @@ def test_import_command(files, world, tmp_path, capsys, monkeypatch, format, cam
     v, fused = scene.num_views, " from images: " in line
     assert fused == (format in ("anysplat", "worldmirror")), line
     assert told == ([("associate", k, v) for k in range(1, v + 1)] if fused else []), told
-    assert line.startswith(f"{format}: ") and " got a view, " in line and " ambiguous" in line
+    assert line.startswith(f"{format}: ") and " ambiguous" in line
+    # From the images, the voxels of one pixel got theirs.
+    assert re.search(r" got a view \([\d,]+ with their pixel\), " if fused else " got a view, ",
+                     line), line
     bundle = load_scene(out)
     report = json.loads((out / "import.json").read_text())
     assert report["association"] in line and report["num_vertices"] == len(bundle)

@@ -14,7 +14,7 @@ from .scene import Gaussians, RenderSettings, Scene
 
 #: The one place the version is written: pyproject.toml reads it (scikit-build-core's regex
 #: provider), CHANGELOG.md's newest section names it (tests/test_release.py).
-__version__ = "0.13.0"
+__version__ = "0.14.0"
 
 __all__ = [
     "Camera", "ClearsplatError", "Gaussians", "Scene", "RenderSettings", "__version__",

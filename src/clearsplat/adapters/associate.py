@@ -42,7 +42,7 @@ from ..scene import SHARED, Gaussians, RenderSettings, Scene, sh_dc_to_rgb
 
 __all__ = ["Association", "Similarity", "associate_centred", "associate_fused",
            "associate_ordered", "normalised_frame", "CENTRE_TOLERANCE", "CENTRE_RATIO",
-           "COLOUR_SIGMA", "AGREE_RATIO", "SEEN_WEIGHT"]
+           "COLOUR_SIGMA", "AGREE_RATIO", "SEEN_WEIGHT", "HIDDEN_DEPTH"]
 
 #: Pixels a vertex's projection may lie off its pixel's centre, per axis, by default. Depth
 #: Anything 3 moves centres by a predicted xy offset (unbounded in its code, sub-pixel in what
@@ -86,6 +86,10 @@ AGREE_RATIO = 0.7
 #: :func:`associate_fused`: the least blending weight, summed over a view's pixels, of a
 #: Gaussian that view sees (the filter's rasterizer association takes 0.05 at one pixel).
 SEEN_WEIGHT = 0.05
+#: :func:`associate_fused`: in a view's blending weights, a Gaussian is hidden only by those in
+#: front of it by more than this share of its depth: its own surface, a fusion's few
+#: Gaussians deep, does not hide it (the filter's ``verify_hidden`` margin).
+HIDDEN_DEPTH = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,11 +123,14 @@ class Association:
 
     def summary(self) -> str:
         """One line: ``associated 123,456 Gaussians from geometry: 120,001 got a view, 3,455
-        ambiguous`` (and, where there are any, ``..., 60,000 shared by several views``)."""
+        ambiguous`` (and, where there are any, ``..., 60,000 shared by several views``; from
+        the images, ``120,001 got a view (50,000 with their pixel)``)."""
         n, amb = len(self), int(np.count_nonzero(self.ambiguous))
         shared = int(np.count_nonzero(self.view_id == SHARED))
+        pixels = int(np.count_nonzero(self.pixel_id >= 0)) if self.source == "images" else 0
         return (f"associated {n:,} Gaussians from {self.source}: {n - amb - shared:,} got a "
-                f"view, " + (f"{shared:,} shared by several views, " if shared else "")
+                "view" + (f" ({pixels:,} with their pixel)" if pixels else "") + ", "
+                + (f"{shared:,} shared by several views, " if shared else "")
                 + f"{amb:,} ambiguous")
 
     def to_scene(self, gaussians: Gaussians, cameras, images=None, *,
@@ -496,7 +503,29 @@ def associate_centred(means, cameras, *, min_seen: float = 0.5) -> Association:
     means = _checked_means(means)
     cameras = _checked_cameras(cameras)
     min_seen = _checked_share(min_seen)
-    tolerance, ratio = CENTRE_TOLERANCE, CENTRE_RATIO
+    tolerance = CENTRE_TOLERANCE
+    n = len(means)
+    view_id, pixel_id, best, second = _nearest_centres(means, cameras)
+    seen = np.isfinite(best)
+    if n and seen.mean() < min_seen:
+        raise ClearsplatError(f"only {100 * seen.mean():.1f} % of the vertices project into an "
+                              "input image: the cameras do not fit the export (another frame, "
+                              "other cameras?)", field="cameras")
+    if not seen.all():
+        view_id[~seen] = _facing_view(means[~seen], cameras)
+    ambiguous = ~(best <= tolerance) | _two_alike(best, second)
+    # On no pixel centre (a merged voxel, a model run at a lower precision): the nearest
+    # camera's view, but no pixel, which the filter would read as exact.
+    pixel_id[~(best <= tolerance)] = -1
+    return Association(view_id, pixel_id, ambiguous, "geometry")
+
+
+def _nearest_centres(means: np.ndarray, cameras
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per centre, the camera that puts it nearest a pixel centre, that pixel, and the
+    smallest and second smallest offsets over the cameras (:func:`_centre_offsets`; inf where
+    fewer cameras see it): (M,) int64 each, then (M,) float64 each. Camera 0 where none sees
+    it."""
     n = len(means)
     best, second = np.full(n, np.inf), np.full(n, np.inf)
     view_id, pixel_id = np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64)
@@ -507,18 +536,13 @@ def associate_centred(means, cameras, *, min_seen: float = 0.5) -> Association:
         best = np.where(nearer, off, best)
         view_id[nearer] = v
         pixel_id[nearer] = pixel[nearer]
-    seen = np.isfinite(best)
-    if n and seen.mean() < min_seen:
-        raise ClearsplatError(f"only {100 * seen.mean():.1f} % of the vertices project into an "
-                              "input image: the cameras do not fit the export (another frame, "
-                              "other cameras?)", field="cameras")
-    if not seen.all():
-        view_id[~seen] = _facing_view(means[~seen], cameras)
-    ambiguous = ~(best <= tolerance) | (second <= np.maximum(ratio * best, tolerance / ratio))
-    # On no pixel centre (a merged voxel, a model run at a lower precision): the nearest
-    # camera's view, but no pixel, which the filter would read as exact.
-    pixel_id[~(best <= tolerance)] = -1
-    return Association(view_id, pixel_id, ambiguous, "geometry")
+    return view_id, pixel_id, best, second
+
+
+def _two_alike(best: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(M,) bool: the second camera puts the centre about as near a pixel centre as the first
+    (:data:`CENTRE_RATIO`)."""
+    return second <= np.maximum(CENTRE_RATIO * best, CENTRE_TOLERANCE / CENTRE_RATIO)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -530,10 +554,14 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
 
     For Gaussians that mix pixels of several views (voxel fusion) or that come with no order
     information at all. Every input camera is rendered, one at a time, with the blending weight
-    ``alpha * T`` of every (pixel, Gaussian) pair; each pair's agreement ``exp(-e^2 / (2
-    sigma^2))`` (``sigma`` :data:`COLOUR_SIGMA`) says how well the Gaussian's colour (its SH
-    DC term) matches that view's input image at the pixel (``e`` the RMS difference over the
-    channels). Per Gaussian and view:
+    of every (pixel, Gaussian) pair: ``alpha * T``, where the transmittance ``T`` counts only
+    the Gaussians in front of it by more than :data:`HIDDEN_DEPTH` of its depth
+    (:func:`_unhidden_weights`). A fusion leaves a surface several Gaussians deep (a slanted
+    or noisy one, voxels of a few pixels each); those of one surface do not hide each other,
+    so a transient's Gaussians behind its front ones still agree with the view that saw it.
+    Each pair's agreement ``exp(-e^2 / (2 sigma^2))`` (``sigma`` :data:`COLOUR_SIGMA`) says
+    how well the Gaussian's colour (its SH DC term) matches that view's input image at the
+    pixel (``e`` the RMS difference over the channels). Per Gaussian and view:
     ``W`` the summed weight (how large the view sees it), ``A`` the agreement-weighted sum and
     ``r = A / W`` the share of it that agrees (:func:`_view_sums`).
 
@@ -566,7 +594,16 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
       view whose image centre its centre projects nearest to (the one facing it most where
       none has it in front). Marked ambiguous.
 
-    ``pixel_id`` is -1 for every Gaussian: a fused Gaussian stands for pixels of several
+    **One pixel's Gaussian.** A voxel that holds one pixel keeps that pixel's Gaussian, and a
+    model that places its Gaussians on their pixels' rays (AnySplat, WorldMirror) leaves its
+    centre on the ray through that pixel's centre: it is what a per-pixel model predicts, and
+    it takes that view and pixel as :func:`associate_centred` finds them, whatever the renders
+    say. Such hits are taken only where they are real, at least nine in ten of them, judged by
+    the centres that chance puts just outside the tolerance (:func:`_one_pixel_gaussians`): a
+    trained scene's Gaussians, or a fusion that moves every centre, lie on pixel centres by
+    chance only, and none is taken.
+
+    Every other Gaussian gets ``pixel_id`` -1: a fused Gaussian stands for pixels of several
     views, and one pixel of one view would misstate it. The filter then maps each image
     region to Gaussians through the rasterizer (compositing the view's own Gaussians from its
     camera; :func:`clearsplat.filter.association.region_gaussians`).
@@ -589,7 +626,8 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
     Returns
     -------
     Association
-        ``source = "images"``, ``pixel_id = -1``; ``view_id = -1`` where shared.
+        ``source = "images"``; ``view_id = -1`` where shared; ``pixel_id = -1`` but for one
+        pixel's Gaussians.
     """
     if isinstance(gaussians, Scene):
         settings = settings or gaussians.render_settings
@@ -604,9 +642,13 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
     total, agreeing = _view_sums(gaussians, cameras, images, settings=settings,
                                  num_threads=num_threads, progress=progress)
     view_id, ambiguous, unseen = _choose_views(total, agreeing)
+    means = gaussians.means.astype(np.float64)
     if unseen.any():
-        view_id[unseen] = _facing_view(gaussians.means[unseen].astype(np.float64), cameras)
-    return Association(view_id, np.full(n, -1, dtype=np.int64), ambiguous, "images")
+        view_id[unseen] = _facing_view(means[unseen], cameras)
+    pixel_id = np.full(n, -1, dtype=np.int64)
+    one, one_view, one_pixel = _one_pixel_gaussians(means, cameras)
+    view_id[one], pixel_id[one], ambiguous[one] = one_view[one], one_pixel[one], False
+    return Association(view_id, pixel_id, ambiguous, "images")
 
 
 #: Largest summed weight held (float16).
@@ -618,24 +660,92 @@ _CHUNK = 1 << 18
 def _view_sums(gaussians: Gaussians, cameras, images, *, settings, num_threads,
                progress=None) -> tuple[np.ndarray, np.ndarray]:
     """Per Gaussian and view, rendering one camera at a time: ``W``, the summed blending
-    weight, and ``A``, the agreement-weighted sum, each (N, V) float16 (capped at 65504; half
-    precision keeps small sums' relative precision): 4 bytes per Gaussian and view."""
+    weight (:func:`_unhidden_weights`), and ``A``, the agreement-weighted sum, each (N, V)
+    float16 (capped at 65504; half precision keeps small sums' relative precision): 4 bytes
+    per Gaussian and view."""
     n = len(gaussians)
     colour = np.clip(sh_dc_to_rgb(gaussians.sh[:, 0]), 0.0, 1.0)
+    means = gaussians.means.astype(np.float64)
     total = np.zeros((n, len(cameras)), dtype=np.float16)
     agreeing = np.zeros((n, len(cameras)), dtype=np.float16)
     for v, (cam, image) in enumerate(zip(cameras, images)):
         view = prepare(gaussians, cam, num_threads=num_threads, settings=settings)
         c = view.contributions(np.ones((cam.height, cam.width), dtype=bool))
+        weight = _unhidden_weights(c.pixel, c.weight, cam.to_camera(means)[c.gaussian, 2])
         diff = colour[c.gaussian] - image.reshape(-1, 3)[c.pixel]
         agree = np.exp(np.einsum("ij,ij->i", diff, diff) / (-6.0 * COLOUR_SIGMA ** 2))
-        total[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight, minlength=n),
+        total[:, v] = np.minimum(np.bincount(c.gaussian, weights=weight, minlength=n),
                                  _WEIGHT_CAP)
-        agreeing[:, v] = np.minimum(np.bincount(c.gaussian, weights=c.weight * agree,
+        agreeing[:, v] = np.minimum(np.bincount(c.gaussian, weights=weight * agree,
                                                 minlength=n), _WEIGHT_CAP)
         if progress is not None:
             progress("associate", v + 1, len(cameras))
     return total, agreeing
+
+
+def _unhidden_weights(pixel: np.ndarray, weight: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Each pair's blending weight with only what lies clearly in front counted as hiding it.
+
+    Parameters
+    ----------
+    pixel, weight : (M,) arrays
+        A render's ``(pixel, alpha * T)`` pairs, ordered by pixel, then front to back (a
+        :class:`~clearsplat.render.Contributions`).
+    depth : (M,) float64
+        Each pair's Gaussian's camera depth (the compositing order within a pixel).
+
+    Returns
+    -------
+    (M,) float64
+        ``alpha * T'``: ``alpha = weight / T`` (``T`` one minus the weights before it in its
+        pixel) and ``T'`` the product of ``1 - alpha`` over the Gaussians before it in its
+        pixel whose depth is less than ``1 -`` :data:`HIDDEN_DEPTH` times its own.
+    """
+    w = np.asarray(weight, dtype=np.float64)
+    if not len(w):
+        return w
+    pixel = np.asarray(pixel, dtype=np.int64)
+    z = np.maximum(np.asarray(depth, dtype=np.float64), 0.0)
+    starts = np.flatnonzero(np.r_[True, pixel[1:] != pixel[:-1]])
+    first = np.repeat(starts, np.diff(np.r_[starts, len(w)]))
+    summed = np.cumsum(w)
+    trans = 1.0 - (summed - w - (summed[first] - w[first]))
+    alpha = np.clip(w / np.maximum(trans, 1e-30), 0.0, _MAX_ALPHA)
+    log_pass = np.log1p(-alpha)
+    before = np.cumsum(log_pass) - log_pass          # summed log(1 - alpha) of all before
+    # The first pair of each pair's pixel at a depth of at least (1 - HIDDEN_DEPTH) times its
+    # own: the keys ``pixel + a depth share below 1/2`` rise along the list (made monotone
+    # against ties the rasterizer's float32 sort may order otherwise); those before it hide it.
+    unit = 0.5 / max(float(z.max()), 1e-30)
+    key = np.maximum.accumulate(pixel + z * unit)
+    front = np.searchsorted(key, pixel + z * ((1.0 - HIDDEN_DEPTH) * unit))
+    front = np.clip(front, first, np.arange(len(w)))
+    return alpha * np.exp(before[front] - before[first])
+
+
+#: The largest opacity :func:`_unhidden_weights` reads back from a weight (3DGS clamps
+#: opacity at 0.99; a little above leaves room for round-off).
+_MAX_ALPHA = 0.999
+
+
+def _one_pixel_gaussians(means: np.ndarray, cameras
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gaussians whose centres lie on a pixel centre of one camera (see
+    :func:`associate_fused`): (M,) bool, and each one's camera and pixel, (M,) int64 each.
+
+    A centre is on a pixel centre where :func:`associate_centred` would give it a pixel
+    unambiguously (within :data:`CENTRE_TOLERANCE`, no second camera alike). Chance puts a
+    centre within ``t`` of some camera's pixel centre with a probability that grows as
+    ``t^2`` (``(2 t)^2`` per camera), so as many centres fall within the tolerance by chance
+    as a third of those between it and twice it. The hits are taken where they are at least
+    ten times that count (nine in ten genuine), else none is.
+    """
+    view_id, pixel_id, best, second = _nearest_centres(means, cameras)
+    hit = (best <= CENTRE_TOLERANCE) & ~_two_alike(best, second)
+    near = (best > CENTRE_TOLERANCE) & (best <= 2 * CENTRE_TOLERANCE)
+    if np.count_nonzero(hit) < max(10.0 * np.count_nonzero(near) / 3.0, 1.0):
+        hit[:] = False
+    return hit, view_id, pixel_id
 
 
 def _choose_views(total: np.ndarray, agreeing: np.ndarray

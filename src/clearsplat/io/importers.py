@@ -140,7 +140,8 @@ class ExportFormat:
     voxelized : bool
         The upstream default fuses pixels into voxels: the file holds no association, and
         each voxel's view is recovered from the images
-        (:func:`clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``).
+        (:func:`clearsplat.adapters.associate.associate_fused`; a pixel only for a
+        voxel of one pixel).
     cut_note : str
         A cut the export may apply that drops vertices without a record.
     source : str
@@ -212,10 +213,11 @@ class ModelExport:
         order with unknown cuts; views and pixels from the geometry
         (:func:`~clearsplat.adapters.associate.associate_ordered`). ``"voxels-or-ordered"``:
         voxel-merged when the vertices are sorted by voxel key, then each Gaussian's view from
-        the images (:func:`~clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``);
-        else ordered; in neither order (a subsample), views and pixels from the pixel centre
-        each centre lies on (:func:`~clearsplat.adapters.associate.associate_centred`), or from
-        the images where the centres are not on pixel centres. ``"ranked-or-ordered"``: where
+        the images (:func:`~clearsplat.adapters.associate.associate_fused`, a pixel only for a
+        voxel of one pixel); else ordered; in neither order (a subsample), views and pixels
+        from the pixel centre each centre lies on
+        (:func:`~clearsplat.adapters.associate.associate_centred`), or from the images where
+        the centres are not on pixel centres. ``"ranked-or-ordered"``: where
         the export ranked its vertices by opacity (pruning), as the subsample; else ordered.
         ``"refused"``: the file cannot be filtered.
     opacity : {"logit", "raw"}
@@ -567,7 +569,8 @@ def import_export(path, format: str, cameras, images=None, *, trim: int | None =
     voxelized : bool, optional
         Whether the model fused pixels into voxels (``anysplat``: its released configs do,
         the default); each voxel's view is then recovered from the images
-        (:func:`clearsplat.adapters.associate.associate_fused`, ``pixel_id = -1``).
+        (:func:`clearsplat.adapters.associate.associate_fused`; a pixel only for a
+        voxel of one pixel).
         ``False``: a per-pixel export in the model's order.
     half_pixel : bool, optional
         Move the cameras' principal points by +0.5 px (VGGT's pixel convention, AnySplat).
