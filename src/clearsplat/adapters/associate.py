@@ -19,7 +19,8 @@ view and pixel made each Gaussian, this module recovers them:
   WorldMirror's voxel fusion) or come from any trainer, in no useful order. From renders of
   every input camera: a Gaussian whose colour agrees with one view's image only (a transient)
   goes to that view; one that several views, most of those that see it, see agreeing (static
-  content) is shared by them (``view_id = -1``); ``pixel_id = -1``.
+  content) is shared by them (``view_id = -1``); ``pixel_id = -1``, but a voxel of one pixel,
+  its centre on that pixel's centre, takes that view and pixel.
 - :func:`normalised_frame`: the frame Depth Anything 3 writes its Gaussians in when it is
   given poses (camera 0 the identity, median camera distance 1), as the similarity back to the
   cameras' frame.
@@ -103,7 +104,8 @@ class Association:
         for static content several views see alike (:func:`associate_fused`).
     pixel_id : (N,) int64
         ``row * width + col`` in that view's image, or -1 where there is none (fused
-        Gaussians; a vertex that does not project into its view's image).
+        Gaussians, but for a voxel of one pixel; a vertex that does not project into its
+        view's image).
     ambiguous : (N,) bool
         No view is clearly right: for :func:`associate_ordered` the vertex lies outside its
         view's image or breaks its run's row-major order; for :func:`associate_centred` no
@@ -699,7 +701,9 @@ def _unhidden_weights(pixel: np.ndarray, weight: np.ndarray, depth: np.ndarray) 
     (M,) float64
         ``alpha * T'``: ``alpha = weight / T`` (``T`` one minus the weights before it in its
         pixel) and ``T'`` the product of ``1 - alpha`` over the Gaussians before it in its
-        pixel whose depth is less than ``1 -`` :data:`HIDDEN_DEPTH` times its own.
+        pixel whose depth is less than ``1 -`` :data:`HIDDEN_DEPTH` times its own. A Gaussian
+        the compositing never reached at a pixel (the transmittance ran out before it) has no
+        pair there.
     """
     w = np.asarray(weight, dtype=np.float64)
     if not len(w):

@@ -518,8 +518,8 @@ def load_scene(path, *, require_images: bool = True, associate: bool = False,
         A PLY without ``view_id`` (a scene from any trainer or model) is refused, unless this
         is set: then each Gaussian's view is recovered from how it reproduces the input
         images (:func:`clearsplat.adapters.associate.associate_fused`; a pixel only where a
-        Gaussian lies on one camera's pixel centre), and a
-        ``UserWarning`` says so in one line (how many got a view, how many are ambiguous).
+        Gaussian lies on one camera's pixel centre), and a ``UserWarning`` says so in one line
+        (how many got a view, how many are ambiguous).
     progress : callable(stage, done, total), optional
         Told of the association's progress, one camera at a time (stage ``"associate"``).
 
