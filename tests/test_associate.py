@@ -509,7 +509,7 @@ def _slow_unhidden(pixel, weight, depth, margin):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_unhidden_weights_match_a_loop(seed):
+def test_unhidden_weights_match_a_loop(seed, monkeypatch):
     rng = np.random.default_rng(seed)
     pixel = np.sort(rng.integers(0, 40, 300))
     depth = np.empty(300)
@@ -524,12 +524,8 @@ def test_unhidden_weights_match_a_loop(seed):
                           assoc.HIDDEN_DEPTH)
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-9)
     # With no margin it is the render's own weight.
-    monkey = pytest.MonkeyPatch()
-    monkey.setattr(assoc, "HIDDEN_DEPTH", 0.0)
-    try:
-        same = assoc._unhidden_weights(pixel, weight.astype(np.float32), depth)
-    finally:
-        monkey.undo()
+    monkeypatch.setattr(assoc, "HIDDEN_DEPTH", 0.0)
+    same = assoc._unhidden_weights(pixel, weight.astype(np.float32), depth)
     np.testing.assert_allclose(same, weight, rtol=1e-4, atol=1e-7)
 
 
