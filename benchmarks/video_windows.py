@@ -138,8 +138,10 @@ def make_fused_bundle(folder: Path, source: Path, seed: int = 0) -> None:
     """The per-pixel bundle ``source`` as a voxel-fused export with its views recovered from
     the images, in ``folder``, with the voxels' ``truth.npy``, ``quality.npz`` (the test
     views, the fused scene's unfiltered PSNR and the clean twin's) and ``association.json``
-    (:func:`fused_association`)."""
+    (:func:`fused_association`, and the clearsplat version that recovered the views)."""
     import importlib.util
+
+    import clearsplat
     from clearsplat import Camera, Scene
     from clearsplat.adapters.associate import associate_fused
     from clearsplat.bench import _quality
@@ -169,8 +171,18 @@ def make_fused_bundle(folder: Path, source: Path, seed: int = 0) -> None:
     np.save(tmp / "truth.npy", share > 0.5)
     np.savez(tmp / "quality.npz", **q)
     (tmp / "association.json").write_text(json.dumps(
-        fused_association(a.view_id, share > 0.5, frame, len(cameras))))
+        {**fused_association(a.view_id, share > 0.5, frame, len(cameras)),
+         "clearsplat": clearsplat.__version__}))
     tmp.rename(folder)
+
+
+def _fused_is_current(folder: Path) -> bool:
+    """Whether the fused bundle ``folder`` exists with its views recovered by this clearsplat
+    (another version's association would give other figures)."""
+    import clearsplat
+    record = folder / "association.json"
+    return record.is_file() and \
+        json.loads(record.read_text()).get("clearsplat") == clearsplat.__version__
 
 
 def fused_association(view_id: np.ndarray, distractor: np.ndarray, frame: np.ndarray,
@@ -271,7 +283,8 @@ def main(argv=None) -> int:
             print(f"(made {bundle} in {time.perf_counter() - t:.0f} s)", flush=True)
         if args.fused:
             source, bundle = bundle, Path(f"{bundle}-fused")
-            if not bundle.is_dir():
+            if not _fused_is_current(bundle):      # the association of this clearsplat
+                shutil.rmtree(bundle, ignore_errors=True)
                 t = time.perf_counter()
                 make_fused_bundle(bundle, source)
                 print(f"(made {bundle} in {time.perf_counter() - t:.0f} s)", flush=True)

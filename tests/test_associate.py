@@ -562,7 +562,8 @@ def test_a_wall_right_behind_another_is_seen_by_the_view_that_shows_it():
                          scales=np.r_[wall.scales, wall.scales * (1 + gap)],
                          **{f: np.r_[getattr(wall, f), getattr(wall, f)]
                             for f in ("quats", "opacities", "sh")})
-        total, _ = assoc._view_sums(both, cams, images, settings=None, num_threads=1)
+        total, _ = assoc._view_sums(both, both.means.astype(np.float64), cams, images,
+                                    settings=None, num_threads=1)
         front, behind = (total[inside, 0].astype(float), total[n + inside, 0].astype(float))
         if gap < assoc.HIDDEN_DEPTH:
             np.testing.assert_allclose(behind, front, rtol=2e-3)

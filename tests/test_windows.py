@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import clearsplat
 from clearsplat import ClearsplatError, FilterConfig, filter_distractors
 from clearsplat.batch import filter_scene, filter_windows, plan_windows
 from clearsplat.filter.pipeline import resolve_auto
@@ -619,6 +620,19 @@ def test_the_long_video_benchmark_runs_end_to_end(tmp_path, capsys):
     row, = json.loads((tmp_path / "fused.json").read_text())
     assert row["gaussians"] == len(fused) and 0 <= row["recall"] <= 1
     assert "(fused: frame " in capsys.readouterr().out
+    # Kept for the next run, but made again where another clearsplat recovered its views.
+    record = tmp_path / "street-video-6-32x48-fused" / "association.json"
+    made = json.loads(record.read_text())
+    assert made["clearsplat"] == clearsplat.__version__
+    record.write_text(json.dumps({**made, "clearsplat": "0.0.1", "largest_frame": 99}))
+    assert bench.main(["--frames", "6", "--resolution", "32x48", "--modes", "whole",
+                       "--cache", str(tmp_path), "--fused", "--no-quality"]) == 0
+    out = capsys.readouterr().out
+    assert "(made " in out and "-fused in " in out
+    assert json.loads(record.read_text()) == made
+    assert bench.main(["--frames", "6", "--resolution", "32x48", "--modes", "whole",
+                       "--cache", str(tmp_path), "--fused", "--no-quality"]) == 0
+    assert "-fused in " not in capsys.readouterr().out
 
 
 def test_the_fused_association_summary_counts_by_hand():

@@ -641,10 +641,10 @@ def associate_fused(gaussians, cameras, images, *, settings: RenderSettings | No
     cameras = _checked_cameras(cameras)
     images = _checked_images(images, cameras)
     n = len(gaussians)
-    total, agreeing = _view_sums(gaussians, cameras, images, settings=settings,
+    means = gaussians.means.astype(np.float64)
+    total, agreeing = _view_sums(gaussians, means, cameras, images, settings=settings,
                                  num_threads=num_threads, progress=progress)
     view_id, ambiguous, unseen = _choose_views(total, agreeing)
-    means = gaussians.means.astype(np.float64)
     if unseen.any():
         view_id[unseen] = _facing_view(means[unseen], cameras)
     pixel_id = np.full(n, -1, dtype=np.int64)
@@ -659,15 +659,14 @@ _WEIGHT_CAP = 65504.0
 _CHUNK = 1 << 18
 
 
-def _view_sums(gaussians: Gaussians, cameras, images, *, settings, num_threads,
-               progress=None) -> tuple[np.ndarray, np.ndarray]:
+def _view_sums(gaussians: Gaussians, means: np.ndarray, cameras, images, *, settings,
+               num_threads, progress=None) -> tuple[np.ndarray, np.ndarray]:
     """Per Gaussian and view, rendering one camera at a time: ``W``, the summed blending
     weight (:func:`_unhidden_weights`), and ``A``, the agreement-weighted sum, each (N, V)
     float16 (capped at 65504; half precision keeps small sums' relative precision): 4 bytes
-    per Gaussian and view."""
+    per Gaussian and view. ``means``: the centres in float64."""
     n = len(gaussians)
     colour = np.clip(sh_dc_to_rgb(gaussians.sh[:, 0]), 0.0, 1.0)
-    means = gaussians.means.astype(np.float64)
     total = np.zeros((n, len(cameras)), dtype=np.float16)
     agreeing = np.zeros((n, len(cameras)), dtype=np.float16)
     for v, (cam, image) in enumerate(zip(cameras, images)):

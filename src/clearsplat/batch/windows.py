@@ -45,7 +45,7 @@ import numpy as np
 
 from .._memory import return_free_memory
 from ..errors import ClearsplatError
-from ..io.bundle import bundle_camera_file
+from ..io.bundle import bundle_camera_file, check_association
 from ..scene import SHARED
 
 __all__ = ["Window", "plan_windows", "filter_windows", "uses_windows", "order_breaks",
@@ -465,13 +465,7 @@ def _checked_input(bundle: Path):
                               f"has {len(cameras)} cameras (0..{len(cameras) - 1}, or -1: "
                               "shared)", path=ply.path, field="view_id")
     if "pixel_id" in ply.dtype.names and (views == SHARED).any():   # a second pass: fused only
-        pixels = ply.column("pixel_id")
-        bad = (views == SHARED) & (pixels != -1)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise ClearsplatError(f"pixel id {pixels[i]} at vertex {i} is out of range for "
-                                  "view -1 (-1: shared, no pixel)", path=ply.path,
-                                  field="pixel_id")
+        check_association(views.astype(np.int64), ply.column("pixel_id"), cameras, ply.path)
     missing = [i for i, p in enumerate(image_paths) if p is None or not Path(p).is_file()]
     if missing:
         raise ClearsplatError(f"frame {missing[0]} image file not found ({len(missing)} of "

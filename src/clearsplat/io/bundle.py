@@ -549,7 +549,7 @@ def load_scene(path, *, require_images: bool = True, associate: bool = False,
                               "of the input view that predicted it (`clearsplat filter` "
                               "recovers it from the images)", path=ply, field="view_id")
     if view_id is not None:
-        _check_association(view_id, pixel_id, cameras, ply)
+        check_association(view_id, pixel_id, cameras, ply)
 
     key = "image" if camera_file.name == CAMERAS_FILE else "file_path"
     missing = [i for i, p in enumerate(image_paths) if p is None or not _is_file(p)]
@@ -597,7 +597,9 @@ def _associated(gaussians, cameras, images, settings, ply, progress=None) -> tup
     return found.view_id, found.pixel_id
 
 
-def _check_association(view_id, pixel_id, cameras, ply) -> None:
+def check_association(view_id, pixel_id, cameras, ply) -> None:
+    """One line naming ``ply`` and the field for the first view id past the cameras, or
+    pixel id past its view's image (-1 where none; a shared Gaussian, view -1, has none)."""
     v = len(cameras)
     bad = view_id >= v
     if bad.any():
